@@ -40,10 +40,15 @@ __all__ = [
     "build_model",
     "ROBOT_CONTYPE",
     "ROBOT_CONAFFINITY",
+    "ROBOT_GEOM_GROUPS",
+    "TERRAIN_GEOM_GROUPS",
 ]
 
 ROBOT_CONTYPE = 2
 ROBOT_CONAFFINITY = 1
+# (visual, collision) geom groups of the robot; the terrain uses groups 0 and 1.
+ROBOT_GEOM_GROUPS = (2, 3)
+TERRAIN_GEOM_GROUPS = (0, 1)
 
 
 @dataclass(frozen=True)
@@ -381,10 +386,15 @@ def build_model(
     spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
 
     for geom in spec.geoms:
-        if geom.contype or geom.conaffinity:
+        collides = bool(geom.contype or geom.conaffinity)
+        if collides:
             geom.contype = ROBOT_CONTYPE
             geom.conaffinity = ROBOT_CONAFFINITY
             geom.condim = 3
+            geom.priority = 1  # contact friction = the robot's (randomised per world)
+        # groups 0-1 belong to the terrain (what the depth camera sees), 2-3 to the robot
+        if geom.group < ROBOT_GEOM_GROUPS[0]:
+            geom.group = ROBOT_GEOM_GROUPS[1] if collides else ROBOT_GEOM_GROUPS[0]
 
     for name, q0, kp, kd, tau in zip(
         robot.leg_joints, robot.default_joint_pos, robot.kp, robot.kd, robot.torque_limits, strict=True

@@ -1,0 +1,115 @@
+"""Configuration of the hiking env (one dataclass, composed by hydra in the recipes)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from legoh_rl.envs.curriculum import CurriculumConfig
+from legoh_rl.envs.randomization import DomainRandConfig
+from legoh_rl.envs.sensors import DepthCameraConfig
+
+__all__ = ["HikingEnvConfig", "MODES"]
+
+MODES = ("oracle", "student", "eval")
+
+
+@dataclass
+class HikingEnvConfig:
+    """Everything that defines a :class:`~legoh_rl.envs.hiking.HikingEnv`.
+
+    Attributes:
+        robot: ``"h1"`` or ``"g1"``.
+        freeze_ankle_roll: G1 only, 10 actions instead of 12.
+        num_envs: N, worlds stepped together (``batch_size = [N]``).
+        mode: ``"oracle"`` (privileged training: no depth), ``"student"`` (unified training:
+            depth and the privileged part, which the frozen teacher reads) or ``"eval"``
+            (benchmark: 0.89 m goal radius, 30 s episodes, no curriculum, no randomisation).
+        categories: trail categories of the grid.
+        levels: difficulty levels the worlds start on (the grid always holds all levels).
+        variants: seeded variants per category and level.
+        depth: render the head depth camera (default: off in oracle mode, on otherwise).
+        depth_camera: resolution (64x64 default; 128x128 paper), clipping, noise.
+        perception_every: control steps per depth frame (5 = 10 Hz at 50 Hz control).
+        num_goals: N anticipated/expert goals exposed (3).
+        cmd_speed: commanded walking speed for the tracking reward and curriculum, m/s.
+        episode_length_s: training episode timeout (eval: ``eval_episode_length_s``).
+        goal_radius: trail end reached (training) / ``eval_goal_radius`` in eval mode, m.
+        goal_reach_radius: an expert goal counts as passed within this distance, m.
+        fall_roll_pitch: |roll| or |pitch| above this ends the episode as a fall, rad.
+        fall_height_ratio: base height above the terrain below this x target height: fall.
+        timestep, decimation: physics step (s) and substeps per control step.
+        num_threads: physics threads (None = all usable CPUs).
+        action_clip: actions are clipped to [-clip, clip] (the action spec's bounds).
+        spawn_jitter_xy, spawn_jitter_yaw: random spawn offsets in training (m, rad).
+        reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
+        domain_rand, curriculum: see their modules.
+        trail_tile_size: (length, width) of a trail tile, m (passed to the trail grid).
+        seed: seeds the trails, spawns, randomisation and noise.
+        device: torch device of the output tensors.
+    """
+
+    robot: str = "h1"
+    freeze_ankle_roll: bool = False
+    num_envs: int = 64
+    mode: str = "oracle"
+    categories: tuple[str, ...] = ("randommix", "ditch", "hurdle", "gap", "forest")
+    levels: tuple[int, ...] = (0,)
+    variants: int = 2
+    depth: bool | None = None
+    depth_camera: DepthCameraConfig = field(default_factory=DepthCameraConfig)
+    perception_every: int = 5
+    num_goals: int = 3
+    cmd_speed: float = 0.8
+    episode_length_s: float = 20.0
+    eval_episode_length_s: float = 30.0
+    goal_radius: float = 0.5
+    eval_goal_radius: float = 0.89
+    goal_reach_radius: float = 0.5
+    fall_roll_pitch: float = 1.0
+    fall_height_ratio: float = 0.5
+    timestep: float = 0.005
+    decimation: int = 4
+    num_threads: int | None = None
+    action_clip: float = 5.0
+    spawn_jitter_xy: float = 0.2
+    spawn_jitter_yaw: float = 0.3
+    reward_overrides: dict[str, float] = field(default_factory=dict)
+    domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    seed: int = 0
+    device: str = "cpu"
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"unknown mode {self.mode!r}; valid modes: {list(MODES)}")
+        for name in ("num_envs", "variants", "perception_every", "num_goals", "decimation"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("cmd_speed", "episode_length_s", "eval_episode_length_s", "goal_radius",
+                     "eval_goal_radius", "goal_reach_radius", "timestep", "action_clip"):
+            value = getattr(self, name)
+            if not value > 0:
+                raise ValueError(f"{name} must be positive, got {value!r}")
+        if not self.levels:
+            raise ValueError("levels must name at least one difficulty level")
+
+    @property
+    def depth_enabled(self) -> bool:
+        """Whether the depth camera is rendered."""
+        return self.mode != "oracle" if self.depth is None else bool(self.depth)
+
+    @property
+    def is_eval(self) -> bool:
+        """Evaluation protocol in force."""
+        return self.mode == "eval"
+
+    @property
+    def reach_radius(self) -> float:
+        """Distance to P_B that ends an episode as a success."""
+        return self.eval_goal_radius if self.is_eval else self.goal_radius
+
+    @property
+    def max_episode_s(self) -> float:
+        """Episode timeout, s."""
+        return self.eval_episode_length_s if self.is_eval else self.episode_length_s

@@ -1,0 +1,521 @@
+"""HikingEnv: the natively batched TorchRL environment of humanoid hiking.
+
+One :class:`HikingEnv` steps ``num_envs`` MuJoCo worlds of one robot on one trail grid. Every
+quantity is an ``(N, ...)`` array: observations, rewards, terminations, resets and metrics are
+computed for all worlds at once, with no Python loop over worlds.
+
+Keys (docs/observations.md has every layout and scale; docs/keys.md the contract):
+
+* observations: ``proprio``, ``goal_gps``, ``waypoint_gps``, ``scandots``, ``privileged``,
+  ``expert_goals``, ``perception_tick``, and ``depth`` when the camera is on;
+* ``("reward_terms", name)``: each weighted reward term of this step;
+* ``("episode", metric)``: the six paper metrics of episodes that end at this step (read them
+  where ``done`` is True; 0, or NaN for ``time_to_reach``, elsewhere), plus ``level`` and
+  ``category`` of the trail;
+* ``("info", "diverged")``: the world's physics diverged and was reset (the episode is
+  truncated); ``("info", "bad_action")``: the action held NaN/inf and was replaced by zeros.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import mujoco
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Bounded, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from legoh_rl.envs.config import HikingEnvConfig
+from legoh_rl.envs.curriculum import Curriculum
+from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
+from legoh_rl.envs.physics import BatchedWorlds
+from legoh_rl.envs.randomization import DomainRandConfig, DomainRandomizer
+from legoh_rl.envs.rewards import RewardState, compute_rewards, reward_weights
+from legoh_rl.envs.robots import build_model, get_robot_spec
+from legoh_rl.envs.sensors import (
+    DepthCamera,
+    quat_to_rotmat,
+    roll_pitch_from_gravity,
+    scandot_offsets,
+    scandots,
+    world_to_yaw_frame,
+    yaw_from_quat,
+)
+
+__all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
+
+# Observation scales (legged_gym's): keep every input of order one.
+ANG_VEL_SCALE = 0.25
+DOF_VEL_SCALE = 0.05
+LIN_VEL_SCALE = 2.0
+CONTACT_FORCE_THRESHOLD = 1.0  # N: a foot is in contact above this net force
+
+
+class TrailSource(Protocol):
+    """What the env needs of a trail grid (``legoh_rl.envs.trails.TrailGrid`` implements it).
+
+    Per-tile arrays (T tiles, G max goals): ``tile_level`` (T,) int, ``tile_category`` (T,) int
+    (index into ``categories``), ``tile_start``, ``tile_end``, ``tile_waypoint`` (T, 3) world
+    coordinates, ``tile_goals`` (T, G, 3) padded, ``tile_num_goals`` (T,) int.
+    """
+
+    categories: tuple[str, ...]
+    num_levels: int
+    tile_level: np.ndarray
+    tile_category: np.ndarray
+    tile_start: np.ndarray
+    tile_end: np.ndarray
+    tile_waypoint: np.ndarray
+    tile_goals: np.ndarray
+    tile_num_goals: np.ndarray
+
+    def add_to_spec(self, spec: mujoco.MjSpec) -> None: ...
+
+    def height_at(self, xy: np.ndarray) -> np.ndarray: ...
+
+    def edge_at(self, xy: np.ndarray) -> np.ndarray: ...
+
+
+class HikingEnv(EnvBase):
+    """Batched humanoid hiking on procedurally generated trails (MuJoCo, TorchRL).
+
+    Args:
+        cfg: the :class:`~legoh_rl.envs.config.HikingEnvConfig`.
+        trails: the terrain; ``None`` builds the trail grid of ``cfg`` (categories, all levels,
+            ``cfg.variants`` variants, ``cfg.seed``).
+
+    Shapes: ``batch_size = [N]``; ``action`` (N, A) in [-clip, clip]; ``reward`` (N, 1);
+    ``done``/``terminated``/``truncated`` (N, 1) bool.
+
+    Example:
+        >>> env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=8))
+        >>> td = env.rollout(10)           # random actions
+        >>> td["next", "proprio"].shape    # torch.Size([8, 10, 37])
+    """
+
+    batch_locked = True
+
+    def __init__(self, cfg: HikingEnvConfig | None = None, trails: TrailSource | None = None) -> None:
+        cfg = cfg or HikingEnvConfig()
+        self.cfg = cfg
+        self.robot = get_robot_spec(cfg.robot, freeze_ankle_roll=cfg.freeze_ankle_roll)
+        if trails is None:
+            trails = _default_trails(cfg)
+        self.trails = trails
+        bad = [lvl for lvl in cfg.levels if not 0 <= int(lvl) < trails.num_levels]
+        if bad:
+            raise ValueError(f"levels {bad} out of range; valid levels: {list(range(trails.num_levels))}")
+        N = cfg.num_envs
+        super().__init__(device=torch.device(cfg.device), batch_size=torch.Size([N]))
+        self.built = build_model(self.robot, terrain=trails, timestep=cfg.timestep)
+        self.worlds = BatchedWorlds(self.built, N, decimation=cfg.decimation, num_threads=cfg.num_threads)
+        self.dt = self.worlds.dt
+        self.A = self.robot.num_actions
+        self.max_steps = int(round(cfg.max_episode_s / self.dt))
+        self.push_every = max(1, int(round(cfg.domain_rand.push_interval_s / self.dt)))
+        dr_cfg = DomainRandConfig.off() if cfg.is_eval else cfg.domain_rand
+        self.randomizer = DomainRandomizer(dr_cfg, self.worlds)
+        self.weights = reward_weights(self.robot.reward_weights, cfg.reward_overrides, student=cfg.mode != "oracle")
+        self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg) if cfg.depth_enabled else None
+        self.scandot_xy = scandot_offsets()
+        self.rng = np.random.default_rng(cfg.seed)
+        self.global_steps = 0
+        self.diverged_total = 0
+        self.bad_action_total = 0
+
+        m = self.built.model
+        self.q_default = np.array(self.robot.default_joint_pos)
+        jr = self.built.joint_range
+        mid, half = jr.mean(axis=1), (jr[:, 1] - jr[:, 0]) / 2
+        self.q_soft_limits = np.stack([mid - 0.95 * half, mid + 0.95 * half], axis=1)
+        self._tiles_by = {}
+        for t in range(trails.tile_level.shape[0]):
+            self._tiles_by.setdefault((int(trails.tile_level[t]), int(trails.tile_category[t])), []).append(t)
+        self._tiles_by = {k: np.array(v) for k, v in self._tiles_by.items()}
+        levels0 = self.rng.choice(np.asarray(cfg.levels, dtype=np.int64), size=N)
+        self.curriculum = Curriculum(cfg.curriculum if not cfg.is_eval else type(cfg.curriculum)(enabled=False),
+                                     trails.num_levels, levels0)
+        cats = np.unique(trails.tile_category)
+        self.world_category = cats[np.arange(N) % cats.size]
+        self.metrics = EpisodeMetrics(N)
+        self._alloc_buffers(N, m)
+        self._make_specs()
+
+    # ------------------------------------------------------------------ buffers and specs
+    def _alloc_buffers(self, N: int, m: mujoco.MjModel) -> None:
+        A = self.A
+        G = self.trails.tile_goals.shape[1] + 1
+        self.tile = np.zeros(N, dtype=np.int64)
+        self.goals = np.zeros((N, G, 3))  # expert goals followed by P_B
+        self.num_goals = np.ones(N, dtype=np.int64)
+        self.goal_idx = np.zeros(N, dtype=np.int64)
+        self.start = np.zeros((N, 3))
+        self.end = np.zeros((N, 3))
+        self.waypoint = np.zeros((N, 3))
+        self.episode_step = np.zeros(N, dtype=np.int64)
+        self.action = np.zeros((N, A))
+        self.action_prev = np.zeros((N, A))
+        self.action_hist = np.zeros((N, self.cfg.domain_rand.delay_steps + 1, A))
+        self.dq_prev = np.zeros((N, A))
+        self.torques_prev = np.zeros((N, A))
+        self.feet_air_time = np.zeros((N, 2))
+        self.last_contact = np.zeros((N, 2), dtype=bool)
+        self.depth = None
+        if self.camera is not None:
+            c = self.cfg.depth_camera
+            self.depth = np.ones((N, 1, c.height, c.width), dtype=np.float32)
+        self.tick = np.ones(N, dtype=bool)
+
+    def _make_specs(self) -> None:
+        N, A, dev = self.cfg.num_envs, self.A, self.device
+        k = self.cfg.num_goals
+        P = 3 + 5 + A
+        obs = {
+            "proprio": Unbounded(shape=(N, 3 + 2 + 3 * A + 2), device=dev),
+            "goal_gps": Unbounded(shape=(N, 2), device=dev),
+            "waypoint_gps": Unbounded(shape=(N, 2), device=dev),
+            "scandots": Bounded(-1.0, 1.0, shape=(N, self.scandot_xy.shape[0]), device=dev),
+            "privileged": Unbounded(shape=(N, P), device=dev),
+            "expert_goals": Bounded(-1.0, 1.0, shape=(N, k, 2), device=dev),
+            "perception_tick": Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev),
+            "reward_terms": Composite(
+                {name: Unbounded(shape=(N, 1), device=dev) for name in self.weights}, shape=(N,), device=dev
+            ),
+            "episode": Composite(
+                {
+                    **{name: Unbounded(shape=(N, 1), device=dev) for name in METRIC_NAMES},
+                    "level": Unbounded(shape=(N, 1), dtype=torch.int64, device=dev),
+                    "category": Unbounded(shape=(N, 1), dtype=torch.int64, device=dev),
+                },
+                shape=(N,),
+                device=dev,
+            ),
+            "info": Composite(
+                {
+                    "diverged": Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev),
+                    "bad_action": Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev),
+                },
+                shape=(N,),
+                device=dev,
+            ),
+        }
+        if self.camera is not None:
+            c = self.cfg.depth_camera
+            obs["depth"] = Bounded(0.0, 1.0, shape=(N, 1, c.height, c.width), device=dev)
+        self.observation_spec = Composite(obs, shape=(N,), device=dev)
+        clip = self.cfg.action_clip
+        self.action_spec = Bounded(-clip, clip, shape=(N, A), device=dev)
+        self.reward_spec = Unbounded(shape=(N, 1), device=dev)
+        self.done_spec = Composite(
+            {
+                key: Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev)
+                for key in ("done", "terminated", "truncated")
+            },
+            shape=(N,),
+            device=dev,
+        )
+
+    # ------------------------------------------------------------------ torchrl API
+    def _set_seed(self, seed: int | None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        N = self.cfg.num_envs
+        mask = None
+        if tensordict is not None and "_reset" in tensordict.keys():
+            mask = tensordict.get("_reset").reshape(N).cpu().numpy().astype(bool)
+        ids = np.arange(N) if mask is None else np.flatnonzero(mask)
+        self._reset_worlds(ids)
+        state = self._read_state()
+        self._render_depth(np.isin(np.arange(N), ids))
+        obs = self._observations(state)
+        zeros = np.zeros(N)
+        out = self._to_td(obs, reward_terms={k: zeros for k in self.weights},
+                          episode=self._empty_episode(), info=(np.zeros(N, bool), np.zeros(N, bool)))
+        for key in ("done", "terminated", "truncated"):
+            out.set(key, torch.zeros(N, 1, dtype=torch.bool, device=self.device))
+        return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        N, A = self.cfg.num_envs, self.A
+        action = tensordict.get("action")
+        if action.shape != (N, A):
+            raise ValueError(f"action must have shape {(N, A)} (num_envs, num_actions), got {tuple(action.shape)}")
+        if not action.dtype.is_floating_point:
+            raise TypeError(f"action must be a floating-point tensor, got dtype {action.dtype}")
+        a = action.detach().cpu().numpy().astype(np.float64)
+        bad_action = ~np.isfinite(a).all(axis=1)
+        if bad_action.any():  # documented: replaced by zeros (default pose) and counted
+            a[bad_action] = 0.0
+            self.bad_action_total += int(bad_action.sum())
+        clip = self.cfg.action_clip
+        a = np.clip(a, -clip, clip)
+        self.action_prev[:] = self.action
+        self.action[:] = a
+        self.action_hist = np.roll(self.action_hist, 1, axis=1)
+        self.action_hist[:, 0] = a
+        delay = self.randomizer.delay_steps(self.global_steps)
+        applied = self.action_hist[:, min(delay, self.action_hist.shape[1] - 1)]
+        self.worlds.set_joint_targets(self.q_default + self.robot.action_scale * applied)
+
+        self.episode_step += 1
+        self.global_steps += 1
+        self.randomizer.push(self.episode_step % self.push_every == 0, self.rng)
+        diverged = self.worlds.step()
+        self.diverged_total += int(diverged.sum())
+
+        state = self._read_state()
+        self._advance_goals(state)
+        total, terms = compute_rewards(self._reward_state(state), self.weights)
+        self.metrics.record_step(state["contact"], state["foot_on_edge"])
+
+        fell = (
+            (np.abs(state["roll"]) > self.cfg.fall_roll_pitch)
+            | (np.abs(state["pitch"]) > self.cfg.fall_roll_pitch)
+            | (state["base_height"] < self.cfg.fall_height_ratio * self.robot.base_height_target)
+        ) & ~diverged
+        success = (state["goal_dist"] < self.cfg.reach_radius) & ~diverged & ~fell
+        terminated = fell | success
+        truncated = ((self.episode_step >= self.max_steps) | diverged) & ~terminated
+        done = terminated | truncated
+        episode = self._empty_episode()
+        if done.any():
+            episode = self._finish_episodes(done, success, state)
+
+        self.tick = (self.episode_step % self.cfg.perception_every) == 0
+        self._render_depth(self.tick)
+        obs = self._observations(state)
+        self.dq_prev[:] = state["dq"]
+        self.torques_prev[:] = state["torques"]
+        out = self._to_td(obs, reward_terms=terms, episode=episode, info=(diverged, bad_action))
+        out.set("reward", torch.as_tensor(total, dtype=torch.float32, device=self.device).reshape(N, 1))
+        for key, val in (("done", done), ("terminated", terminated), ("truncated", truncated)):
+            out.set(key, torch.as_tensor(val, device=self.device).reshape(N, 1))
+        return out
+
+    # ------------------------------------------------------------------ episodes
+    def _reset_worlds(self, ids: np.ndarray) -> None:
+        if ids.size == 0:
+            return
+        tr, cfg, n = self.trails, self.cfg, ids.size
+        levels = self.curriculum.levels[ids]
+        tiles = np.empty(n, dtype=np.int64)
+        for key in {(int(lv), int(c)) for lv, c in zip(levels, self.world_category[ids], strict=True)}:
+            sel = (levels == key[0]) & (self.world_category[ids] == key[1])
+            choices = self._tiles_for(*key)
+            tiles[sel] = self.rng.choice(choices, size=int(sel.sum()))
+        self.tile[ids] = tiles
+        self.start[ids] = tr.tile_start[tiles]
+        self.end[ids] = tr.tile_end[tiles]
+        self.waypoint[ids] = tr.tile_waypoint[tiles]
+        ng = tr.tile_num_goals[tiles]
+        G = tr.tile_goals.shape[1]
+        self.goals[ids, :G] = tr.tile_goals[tiles]
+        self.goals[ids, ng] = tr.tile_end[tiles]  # P_B is the last goal
+        self.num_goals[ids] = ng + 1
+        self.goal_idx[ids] = 0
+
+        jitter = 0.0 if cfg.is_eval else 1.0
+        xy = self.start[ids, :2] + jitter * self.rng.uniform(-cfg.spawn_jitter_xy, cfg.spawn_jitter_xy, size=(n, 2))
+        first = self.goals[ids, 0, :2] - xy
+        yaw = np.arctan2(first[:, 1], first[:, 0]) + jitter * self.rng.uniform(
+            -cfg.spawn_jitter_yaw, cfg.spawn_jitter_yaw, size=n
+        )
+        qpos = np.tile(self.built.default_qpos, (n, 1))
+        qpos[:, 0:2] = xy
+        qpos[:, 2] = tr.height_at(xy) + self.robot.spawn_height
+        qpos[:, 3] = np.cos(yaw / 2)
+        qpos[:, 4:6] = 0.0
+        qpos[:, 6] = np.sin(yaw / 2)
+        self.randomizer.randomize(ids, self.rng)
+        self.worlds.reset(ids, qpos=qpos)
+
+        self.episode_step[ids] = 0
+        self.action[ids] = 0.0
+        self.action_prev[ids] = 0.0
+        self.action_hist[ids] = 0.0
+        self.dq_prev[ids] = 0.0
+        self.torques_prev[ids] = 0.0
+        self.feet_air_time[ids] = 0.0
+        self.last_contact[ids] = False
+        self.metrics.reset(ids)
+
+    def _tiles_for(self, level: int, category: int) -> np.ndarray:
+        tiles = self._tiles_by.get((level, category))
+        if tiles is None:  # this category lacks the level: any tile of the level
+            tiles = np.flatnonzero(self.trails.tile_level == level)
+        return tiles
+
+    def _finish_episodes(self, done: np.ndarray, success: np.ndarray, state: dict) -> dict:
+        tr = self.trails
+        trail_len = np.linalg.norm(self.end[:, :2] - self.start[:, :2], axis=1)
+        ep_time = self.episode_step * self.dt
+        metrics = self.metrics.finish(success, ep_time, state["goal_dist"], trail_len, self.num_goals - 1)
+        ids = np.flatnonzero(done)
+        progress = np.maximum(trail_len - state["goal_dist"], 0.0)
+        expected = np.minimum(self.cfg.cmd_speed * self.cfg.max_episode_s, trail_len)
+        episode = {name: np.where(done, metrics[name], 0.0) for name in METRIC_NAMES}
+        episode["time_to_reach"] = np.where(done, metrics["time_to_reach"], np.nan)
+        episode["level"] = tr.tile_level[self.tile].copy()
+        episode["category"] = tr.tile_category[self.tile].copy()
+        self.curriculum.update(ids, progress[ids], expected[ids], success[ids], self.rng)
+        return episode
+
+    def _empty_episode(self) -> dict:
+        N = self.cfg.num_envs
+        ep = {name: np.zeros(N) for name in METRIC_NAMES}
+        ep["time_to_reach"] = np.full(N, np.nan)
+        ep["level"] = self.trails.tile_level[self.tile].copy()
+        ep["category"] = self.trails.tile_category[self.tile].copy()
+        return ep
+
+    # ------------------------------------------------------------------ state, rewards, obs
+    def _read_state(self) -> dict:
+        w, b = self.worlds, self.built
+        qpos, qvel = w.qpos, w.qvel
+        pos = qpos[:, 0:3].copy()
+        quat = qpos[:, 3:7]
+        rot = quat_to_rotmat(quat)
+        gravity_b = -rot[:, 2, :]  # world -z in the base frame = third row of R, negated
+        roll, pitch = roll_pitch_from_gravity(gravity_b)
+        yaw = yaw_from_quat(quat)
+        lin_vel_w = qvel[:, 0:3].copy()
+        lin_vel_b = np.einsum("nji,nj->ni", rot, lin_vel_w)
+        ang_vel_b = qvel[:, 3:6].copy()  # free joint: angular velocity in the body frame
+        sd = w.sensordata
+        foot_force = np.stack([sd[:, a + 1 : a + 4] for a in b.foot_sensor_adr], axis=1)
+        pen_force = np.stack([sd[:, a + 1 : a + 4] for a in b.penalised_sensor_adr], axis=1)
+        contact = np.linalg.norm(foot_force, axis=-1) > CONTACT_FORCE_THRESHOLD
+        feet_xy = w.xpos[:, b.foot_body_ids, :2]
+        foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
+        ground = self.trails.height_at(pos[:, :2])
+        goal_vec = self.end[:, :2] - pos[:, :2]
+        return {
+            "pos": pos, "rot": rot, "gravity_b": gravity_b, "roll": roll, "pitch": pitch, "yaw": yaw,
+            "lin_vel_w": lin_vel_w, "lin_vel_b": lin_vel_b, "ang_vel_b": ang_vel_b,
+            "q": qpos[:, b.qpos_adr].copy(), "dq": qvel[:, b.dof_adr].copy(),
+            "torques": w.actuator_force[:, b.actuator_ids].copy(),
+            "foot_force": foot_force, "pen_force": pen_force, "contact": contact,
+            "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
+            "goal_vec": goal_vec, "goal_dist": np.linalg.norm(goal_vec, axis=1),
+        }
+
+    def _advance_goals(self, state: dict) -> None:
+        """Move each world's current expert goal on once it is within reach or passed."""
+        n = np.arange(self.cfg.num_envs)
+        last = self.num_goals - 1
+        cur = self.goals[n, self.goal_idx, :2]
+        nxt = self.goals[n, np.minimum(self.goal_idx + 1, last), :2]
+        to_cur = cur - state["pos"][:, :2]
+        reached = np.linalg.norm(to_cur, axis=1) < self.cfg.goal_reach_radius
+        seg = nxt - cur
+        passed = np.einsum("ij,ij->i", -to_cur, seg) > 0.0  # beyond the goal, along the next leg
+        move = (reached | passed) & (self.goal_idx < last)
+        self.metrics.goals_passed += (reached & (self.goal_idx < last)).astype(np.int64)
+        self.goal_idx = np.where(move, self.goal_idx + 1, self.goal_idx)
+
+    def _goal_dirs(self, pos: np.ndarray) -> np.ndarray:
+        """Unit world-frame xy directions to the next ``num_goals`` expert goals, (N, k, 2)."""
+        n = np.arange(self.cfg.num_envs)[:, None]
+        idx = np.minimum(self.goal_idx[:, None] + np.arange(self.cfg.num_goals)[None], self.num_goals[:, None] - 1)
+        vec = self.goals[n, idx, :2] - pos[:, None, :2]
+        return vec / np.maximum(np.linalg.norm(vec, axis=-1, keepdims=True), 1e-6)
+
+    def _reward_state(self, s: dict) -> RewardState:
+        contact_filt = s["contact"] | self.last_contact
+        first_contact = (self.feet_air_time > 0.0) & contact_filt
+        self.feet_air_time += self.dt
+        air_time = self.feet_air_time.copy()
+        self.feet_air_time *= ~contact_filt
+        self.last_contact = s["contact"]
+        return RewardState(
+            lin_vel_w=s["lin_vel_w"], ang_vel_b=s["ang_vel_b"], gravity_b=s["gravity_b"],
+            goal_dir_w=self._goal_dirs(s["pos"])[:, 0], yaw=s["yaw"],
+            cmd_speed=np.full(self.cfg.num_envs, self.cfg.cmd_speed),
+            q=s["q"], dq=s["dq"], dq_prev=self.dq_prev, q_default=self.q_default,
+            q_limits=self.q_soft_limits, hip_idx=self.built.hip_idx,
+            torques=s["torques"], torques_prev=self.torques_prev,
+            action=self.action, action_prev=self.action_prev,
+            foot_force=s["foot_force"], penalised_force=s["pen_force"],
+            feet_air_time=air_time, first_contact=first_contact, feet_at_edge=s["foot_on_edge"],
+            terrain_level=self.trails.tile_level[self.tile], base_height=s["base_height"],
+            base_height_target=self.robot.base_height_target, goal_dist=s["goal_dist"],
+            reach_radius=self.cfg.reach_radius, dt=self.dt,
+        )
+
+    def _render_depth(self, which: np.ndarray) -> None:
+        if self.camera is None or not which.any():
+            return
+        ids = np.flatnonzero(which)
+        cam = self.built.camera_id
+        # camera pose at the current state (kinematics of the last call)
+        pos = self.worlds.cam_xpos[ids, cam]
+        mat = self.worlds.cam_xmat[ids, cam].reshape(-1, 3, 3)
+        self.depth[ids] = self.camera.render(self.worlds.batch, pos, mat, ids, self.rng)
+
+    def _observations(self, s: dict) -> dict:
+        yaw = s["yaw"]
+        proprio = np.concatenate(
+            [
+                s["ang_vel_b"] * ANG_VEL_SCALE,
+                np.stack([s["roll"], s["pitch"]], axis=1),
+                s["q"] - self.q_default,
+                s["dq"] * DOF_VEL_SCALE,
+                self.action,
+                s["contact"].astype(np.float64),
+            ],
+            axis=1,
+        )
+        dirs_w = self._goal_dirs(s["pos"])
+        dirs_b = world_to_yaw_frame(dirs_w, yaw)
+        obs = {
+            "proprio": proprio,
+            "goal_gps": world_to_yaw_frame(s["goal_vec"], yaw),
+            "waypoint_gps": world_to_yaw_frame(self.waypoint[:, :2] - s["pos"][:, :2], yaw),
+            "scandots": scandots(s["pos"], yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target),
+            "privileged": np.concatenate([s["lin_vel_b"] * LIN_VEL_SCALE, self.randomizer.privileged()], axis=1),
+            "expert_goals": dirs_b,
+            "perception_tick": self.tick[:, None],
+        }
+        if self.depth is not None:
+            obs["depth"] = self.depth
+        return obs
+
+    def _to_td(self, obs: dict, reward_terms: dict, episode: dict, info: tuple) -> TensorDict:
+        N, dev = self.cfg.num_envs, self.device
+
+        def t(x, dtype=torch.float32):
+            return torch.as_tensor(np.ascontiguousarray(x), device=dev).to(dtype)
+
+        data = {k: t(v, torch.bool) if k == "perception_tick" else t(v) for k, v in obs.items()}
+        data["reward_terms"] = {k: t(v).reshape(N, 1) for k, v in reward_terms.items()}
+        data["episode"] = {
+            k: (t(v, torch.int64) if k in ("level", "category") else t(v)).reshape(N, 1) for k, v in episode.items()
+        }
+        data["info"] = {"diverged": t(info[0], torch.bool).reshape(N, 1), "bad_action": t(info[1], torch.bool).reshape(N, 1)}
+        return TensorDict(data, batch_size=[N], device=dev)
+
+    # ------------------------------------------------------------------ checkpoint state
+    def state_dict(self) -> dict:
+        """Curriculum, rng and counters, for checkpoints (the physics state is not saved)."""
+        return {
+            "curriculum": self.curriculum.state_dict(),
+            "rng": self.rng.bit_generator.state,
+            "global_steps": self.global_steps,
+            "diverged_total": self.diverged_total,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore :meth:`state_dict`."""
+        self.curriculum.load_state_dict(state["curriculum"])
+        self.rng.bit_generator.state = state["rng"]
+        self.global_steps = int(state["global_steps"])
+        self.diverged_total = int(state["diverged_total"])
+
+
+def _default_trails(cfg: HikingEnvConfig) -> TrailSource:
+    from legoh_rl.envs.trails import build_trail_grid
+
+    return build_trail_grid(cfg)

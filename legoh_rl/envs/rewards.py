@@ -1,0 +1,243 @@
+"""The paper's reward table (appendix, "Rewards' definition and weight") as named functions.
+
+Each term is a function ``reward_<name>(s: RewardState) -> (N,)`` of the batched state, unweighted;
+:data:`PAPER_WEIGHTS` holds the table's weights and :func:`compute_rewards` returns every
+weighted term (for logging) and their sum. As in legged_gym, which the paper's Isaac Gym code
+builds on, weights are multiplied by the control period ``dt`` so that the return does not depend
+on the control rate.
+
+Conventions (N worlds, A leg joints):
+
+* velocities: ``lin_vel_w`` base linear velocity in the world frame (N, 3);
+  ``ang_vel_b`` base angular velocity in the base frame (N, 3);
+  ``gravity_b`` unit gravity in the base frame (N, 3);
+* ``goal_dir_w`` unit vector from the base (xy) to the current expert goal (N, 2);
+  ``yaw`` base yaw (N,); ``cmd_speed`` commanded speed along the goal direction (N,);
+* joints: ``q``, ``dq``, ``dq_prev``, ``q_default`` (N, A) or (A,); ``torques``,
+  ``torques_prev`` (N, A); ``q_limits`` (A, 2) soft position limits;
+* actions: ``action``, ``action_prev`` (N, A);
+* contacts: ``foot_force`` (N, 2, 3) net contact force on each foot (world frame),
+  ``penalised_force`` (N, P, 3) on the penalised bodies;
+  ``feet_air_time`` (N, 2) seconds in the air before this step's landing, ``first_contact``
+  (N, 2) bool, feet touching down this step; ``feet_at_edge`` (N, 2) bool, feet in contact on an
+  edge cell; ``terrain_level`` (N,) int;
+* ``base_height`` (N,) pelvis height above the terrain under it, ``base_height_target`` float;
+* ``goal_dist`` (N,) distance to the trail end P_B; ``reach_radius`` float.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "RewardState",
+    "PAPER_WEIGHTS",
+    "STUDENT_ONLY",
+    "REWARD_FUNCTIONS",
+    "reward_weights",
+    "compute_rewards",
+]
+
+EPS = 1e-5
+
+
+@dataclass
+class RewardState:
+    """Batched quantities the reward terms read; see the module docstring for shapes."""
+
+    lin_vel_w: np.ndarray
+    ang_vel_b: np.ndarray
+    gravity_b: np.ndarray
+    goal_dir_w: np.ndarray
+    yaw: np.ndarray
+    cmd_speed: np.ndarray
+    q: np.ndarray
+    dq: np.ndarray
+    dq_prev: np.ndarray
+    q_default: np.ndarray
+    q_limits: np.ndarray
+    hip_idx: np.ndarray
+    torques: np.ndarray
+    torques_prev: np.ndarray
+    action: np.ndarray
+    action_prev: np.ndarray
+    foot_force: np.ndarray
+    penalised_force: np.ndarray
+    feet_air_time: np.ndarray
+    first_contact: np.ndarray
+    feet_at_edge: np.ndarray
+    terrain_level: np.ndarray
+    base_height: np.ndarray
+    base_height_target: float
+    goal_dist: np.ndarray
+    reach_radius: float
+    dt: float
+
+
+def reward_tracking_goal_vel(s: RewardState) -> np.ndarray:
+    """min(v_target . v_t, cmd_x) / (cmd_x + eps): speed toward the current expert goal."""
+    along = np.einsum("ij,ij->i", s.goal_dir_w, s.lin_vel_w[:, :2])
+    return np.minimum(along, s.cmd_speed) / (s.cmd_speed + EPS)
+
+
+def reward_tracking_yaw(s: RewardState) -> np.ndarray:
+    """exp(-|psi_target - psi_t|), the yaw error wrapped to [-pi, pi]."""
+    target = np.arctan2(s.goal_dir_w[:, 1], s.goal_dir_w[:, 0])
+    err = np.angle(np.exp(1j * (target - s.yaw)))
+    return np.exp(-np.abs(err))
+
+
+def reward_lin_vel_z(s: RewardState) -> np.ndarray:
+    """v_z^2."""
+    return s.lin_vel_w[:, 2] ** 2
+
+
+def reward_ang_vel_xy(s: RewardState) -> np.ndarray:
+    """w_x^2 + w_y^2 (base frame)."""
+    return np.sum(s.ang_vel_b[:, :2] ** 2, axis=1)
+
+
+def reward_orientation(s: RewardState) -> np.ndarray:
+    """g_x^2 + g_y^2 of gravity in the base frame: zero when upright."""
+    return np.sum(s.gravity_b[:, :2] ** 2, axis=1)
+
+
+def reward_dof_acc(s: RewardState) -> np.ndarray:
+    """sum ((dq_{t-1} - dq_t) / dt)^2."""
+    return np.sum(((s.dq_prev - s.dq) / s.dt) ** 2, axis=1)
+
+
+def reward_collision(s: RewardState) -> np.ndarray:
+    """Number of penalised (non-foot) bodies with a contact force above 0.1 N."""
+    return np.sum(np.linalg.norm(s.penalised_force, axis=-1) > 0.1, axis=1).astype(np.float64)
+
+
+def reward_action_rate(s: RewardState) -> np.ndarray:
+    """||a_{t-1} - a_t|| (L2 norm, as the paper writes it)."""
+    return np.linalg.norm(s.action_prev - s.action, axis=1)
+
+
+def reward_delta_torques(s: RewardState) -> np.ndarray:
+    """sum (tau_t - tau_{t-1})^2."""
+    return np.sum((s.torques - s.torques_prev) ** 2, axis=1)
+
+
+def reward_torques(s: RewardState) -> np.ndarray:
+    """sum tau_t^2."""
+    return np.sum(s.torques**2, axis=1)
+
+
+def reward_hip_pos(s: RewardState) -> np.ndarray:
+    """sum over hip yaw/roll joints of (q - q_default)^2."""
+    err = (s.q - s.q_default)[:, s.hip_idx]
+    return np.sum(err**2, axis=1)
+
+
+def reward_dof_error(s: RewardState) -> np.ndarray:
+    """sum (q - q_default)^2 over all leg joints."""
+    return np.sum((s.q - s.q_default) ** 2, axis=1)
+
+
+def reward_feet_stumble(s: RewardState) -> np.ndarray:
+    """1 if any foot's horizontal contact force exceeds 4x its vertical one (hitting a riser)."""
+    horiz = np.linalg.norm(s.foot_force[..., :2], axis=-1)
+    return np.any(horiz > 4.0 * np.abs(s.foot_force[..., 2]), axis=1).astype(np.float64)
+
+
+def reward_feet_edge(s: RewardState) -> np.ndarray:
+    """(terrain_level > 3) * number of feet in contact on an edge cell."""
+    return (s.terrain_level > 3) * np.sum(s.feet_at_edge, axis=1).astype(np.float64)
+
+
+def reward_feet_air_time(s: RewardState) -> np.ndarray:
+    """sum over feet touching down of (T_air - 0.5): rewards steps longer than 0.5 s."""
+    return np.sum((s.feet_air_time - 0.5) * s.first_contact, axis=1)
+
+
+def reward_base_height(s: RewardState) -> np.ndarray:
+    """(h_base - h_target)^2, h_base above the terrain under the base."""
+    return (s.base_height - s.base_height_target) ** 2
+
+
+def reward_pn_distance(s: RewardState) -> np.ndarray:
+    """Point-navigation distance (unified training only): 1 inside the reach radius, else -0.75 d."""
+    return np.where(s.goal_dist < s.reach_radius, 1.0, -0.75 * s.goal_dist)
+
+
+def reward_dof_pos_limits(s: RewardState) -> np.ndarray:
+    """sum(-min(0, q - q_low) + max(0, q - q_up)): how far joints are past their soft limits."""
+    low = -np.minimum(0.0, s.q - s.q_limits[:, 0])
+    up = np.maximum(0.0, s.q - s.q_limits[:, 1])
+    return np.sum(low + up, axis=1)
+
+
+REWARD_FUNCTIONS = {
+    name[len("reward_") :]: fn for name, fn in list(globals().items()) if name.startswith("reward_") and callable(fn)
+}
+
+# The paper's table. Per-robot rows (feet_air_time, base_height, dof_pos_limits) come from the
+# RobotSpec. "Tracking Sigma 0.5" in the table is the width of legged_gym's exp tracking kernel,
+# not a term: the paper's tracking terms above are the linear/exp(-|e|) forms of Extreme Parkour.
+PAPER_WEIGHTS: dict[str, float] = {
+    "tracking_goal_vel": 10.0,
+    "tracking_yaw": 0.5,
+    "lin_vel_z": -2.0,
+    "ang_vel_xy": -1.0,
+    "orientation": -1.0,
+    "dof_acc": -3.5e-8,
+    "collision": -10.0,
+    "action_rate": -0.01,
+    "delta_torques": -1.0e-7,
+    "torques": -1.0e-5,
+    "hip_pos": -0.5,
+    "dof_error": -0.04,
+    "feet_stumble": -1.0,
+    "feet_edge": -1.0,
+    "feet_air_time": 1.0,
+    "base_height": -100.0,
+    "pn_distance": 1.0,
+    "dof_pos_limits": 0.0,
+}
+STUDENT_ONLY = frozenset({"pn_distance"})
+
+
+def reward_weights(
+    robot_weights: dict[str, float] | None = None,
+    overrides: dict[str, float] | None = None,
+    student: bool = False,
+) -> dict[str, float]:
+    """The weights in force: the paper's table, then the robot's rows, then user overrides.
+
+    Terms with weight 0 are dropped; ``pn_distance`` is kept only when ``student`` is True.
+
+    Raises:
+        ValueError: an override names an unknown term (the message lists the known ones).
+    """
+    weights = dict(PAPER_WEIGHTS)
+    weights.update(robot_weights or {})
+    for name, value in (overrides or {}).items():
+        if name not in REWARD_FUNCTIONS:
+            raise ValueError(f"unknown reward term {name!r}; known terms: {sorted(REWARD_FUNCTIONS)}")
+        weights[name] = float(value)
+    if not student:
+        for name in STUDENT_ONLY:
+            weights.pop(name, None)
+    return {k: v for k, v in weights.items() if v != 0.0}
+
+
+def compute_rewards(s: RewardState, weights: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Weighted terms and their sum.
+
+    Args:
+        s: the batched state.
+        weights: term name -> weight (see :func:`reward_weights`).
+
+    Returns:
+        total: (N,) sum of ``weight * term * dt``;
+        terms: name -> (N,) ``weight * term * dt``.
+    """
+    terms = {name: w * s.dt * REWARD_FUNCTIONS[name](s) for name, w in weights.items()}
+    total = np.sum(list(terms.values()), axis=0) if terms else np.zeros(s.q.shape[0])
+    return total, terms
