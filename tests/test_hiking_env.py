@@ -1,0 +1,216 @@
+"""HikingEnv behaviour (issue 4): specs, terminations, resets, determinism, sensors, metrics."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from scenes import BoxScene
+from tensordict import TensorDict
+from torchrl.envs import check_env_specs
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.randomization import DomainRandConfig
+
+
+def make(robot="h1", n=3, mode="oracle", scene=None, **kw):
+    kw.setdefault("num_threads", 1)
+    cfg = HikingEnvConfig(robot=robot, num_envs=n, mode=mode, **kw)
+    return HikingEnv(cfg, trails=scene or BoxScene())
+
+
+def act(env, a=None):
+    a = torch.zeros(env.batch_size[0], env.A) if a is None else a
+    return env.step(TensorDict({"action": a}, batch_size=env.batch_size))["next"]
+
+
+def quiet(**kw):
+    """Deterministic spawn, no randomisation: for scripted checks."""
+    return dict(spawn_jitter_xy=0.0, spawn_jitter_yaw=0.0, domain_rand=DomainRandConfig.off(), **kw)
+
+
+@pytest.mark.parametrize("robot", ["h1", "g1"])
+@pytest.mark.parametrize("mode", ["oracle", "student"])
+def test_check_env_specs(robot, mode):
+    env = make(robot, n=2, mode=mode)
+    check_env_specs(env, seed=0)
+    A = 10 if robot == "h1" else 12
+    assert env.action_spec.shape == (2, A)
+    assert env.observation_spec["proprio"].shape == (2, 3 + 2 + 3 * A + 2)
+    assert ("depth" in env.observation_spec.keys()) == (mode == "student")
+
+
+def test_partial_reset_isolates_worlds():
+    env = make(n=3)
+    env.reset()
+    for _ in range(5):
+        act(env, 0.5 * torch.randn(3, env.A))
+    before = env.worlds.qpos.copy()
+    td = env.reset(TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, batch_size=[3]))
+    assert np.array_equal(env.worlds.qpos[[0, 2]], before[[0, 2]])
+    assert not np.array_equal(env.worlds.qpos[1], before[1])
+    assert env.episode_step.tolist() == [5, 0, 5]
+    assert not td["done"].any()
+
+
+def test_same_seed_same_rollout():
+    outs = []
+    for _ in range(2):
+        env = make(n=2, mode="student")
+        env.set_seed(3)
+        torch.manual_seed(0)
+        outs.append(env.rollout(15))
+    for key in ("proprio", "depth", "scandots", "privileged", "reward"):
+        assert torch.equal(outs[0]["next", key], outs[1]["next", key])
+
+
+def test_fall_terminates_with_time_to_fall():
+    env = make(n=2, **quiet())
+    env.reset()
+    for _ in range(3):
+        act(env)
+    roll = 1.3  # past the 1.0 rad threshold
+    env.worlds.qpos[1, 3:7] = [math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0]
+    env.worlds.batch.forward()
+    nxt = act(env)
+    assert nxt["terminated"].squeeze(-1).tolist() == [False, True]
+    assert not nxt["truncated"].any()
+    assert nxt["episode", "ttf"][1].item() == pytest.approx(4 * env.dt)
+    assert nxt["episode", "success"][1].item() == 0.0
+
+
+def test_timeout_truncates():
+    env = make(n=1, **quiet(episode_length_s=0.1))
+    env.reset()
+    flags = [act(env) for _ in range(5)]
+    assert [bool(f["truncated"]) for f in flags] == [False, False, False, False, True]
+    assert not any(bool(f["terminated"]) for f in flags)
+
+
+def teleport_along(env, xs, fall_at=None):
+    """Walk world 0 along y=0 by setting its base each step; return the step outputs."""
+    outs = []
+    for k, x in enumerate(xs):
+        q = env.worlds.qpos
+        q[0, 0], q[0, 1] = x, 0.0
+        q[0, 3:7] = [1.0, 0.0, 0.0, 0.0]
+        env.worlds.qvel[0] = 0.0
+        if fall_at is not None and k == fall_at:
+            q[0, 2] = 0.3  # base far below its target height: a fall
+        env.worlds.batch.forward()
+        outs.append(act(env))
+        if outs[-1]["done"].any():
+            break
+    return outs
+
+
+def test_scripted_success_metrics():
+    """Teleported along the route to P_B (6 m, goals every 1.5 m) at 0.1 m per step."""
+    env = make(n=1, mode="eval", scene=BoxScene(trail_length=6.0, goal_spacing=1.5), **quiet())
+    env.reset()
+    outs = teleport_along(env, np.arange(1, 80) * 0.1)
+    last = outs[-1]
+    assert bool(last["terminated"]) and not bool(last["truncated"])
+    # eval radius 0.89 m: first x with 6 - x < 0.89 is 5.2 (step 52)
+    assert len(outs) == 52
+    ep = last["episode"]
+    assert ep["success"].item() == 100.0
+    assert ep["trail_completion"].item() == pytest.approx(100.0)  # goals at 1.5, 3.0, 4.5 m
+    assert ep["traverse_rate"].item() == 100.0
+    assert ep["time_to_reach"].item() == pytest.approx(52 * env.dt)
+    assert ep["ttf"].item() == pytest.approx(52 * env.dt)
+
+
+def test_scripted_fall_metrics():
+    env = make(n=1, mode="eval", scene=BoxScene(trail_length=6.0, goal_spacing=1.5), **quiet())
+    env.reset()
+    outs = teleport_along(env, np.arange(1, 80) * 0.1, fall_at=19)  # at x = 2.0 m
+    ep = outs[-1]["episode"]
+    assert len(outs) == 20 and bool(outs[-1]["terminated"])
+    assert ep["success"].item() == 0.0
+    assert math.isnan(ep["time_to_reach"].item())
+    assert ep["ttf"].item() == pytest.approx(20 * env.dt)
+    assert ep["trail_completion"].item() == pytest.approx(100.0 / 3)  # passed the goal at 1.5 m
+    assert ep["traverse_rate"].item() == pytest.approx(100.0 * 2.0 / 6.0, abs=1.0)
+
+
+def test_depth_reads_wall_distance():
+    """H1 facing a tall wall 1.2 m ahead: the optical axis meets it at z-depth (1.2 - x_cam)/cos 45."""
+    wall = ([1.2 + 0.1, 0.0, 1.5], [0.1, 2.0, 1.5])
+    env = make(n=1, mode="student", scene=BoxScene(boxes=[wall]), **quiet())
+    td = env.reset()
+    cam = env.worlds.cam_xpos[0, env.built.camera_id]
+    expect = (1.2 - cam[0]) / math.cos(math.radians(45.0))
+    c = env.cfg.depth_camera
+    centre = td["depth"][0, 0, 31:33, 31:33].mean().item() * (c.far - c.near) + c.near
+    assert centre == pytest.approx(expect, abs=0.03)
+    # without the wall the same rays reach the ground at z-depth h / sin 45 (robot body not seen)
+    env2 = make(n=1, mode="student", **quiet())
+    td2 = env2.reset()
+    ground = td2["depth"][0, 0, 31:33, 31:33].mean().item() * (c.far - c.near) + c.near
+    assert ground == pytest.approx(cam[2] / math.sin(math.radians(45.0)), abs=0.03)
+
+
+def test_depth_refreshes_every_fifth_step():
+    env = make(n=2, mode="student")
+    env.reset()
+    ticks = [bool(act(env, 0.3 * torch.randn(2, env.A))["perception_tick"][0]) for _ in range(10)]
+    assert ticks == [False, False, False, False, True] * 2
+
+
+def test_scandots_read_a_step():
+    step = ([1.25, 0.0, 0.05], [0.75, 2.0, 0.05])  # 10 cm step covering x in [0.5, 2.0]
+    env = make(n=1, scene=BoxScene(boxes=[step]), **quiet())
+    td = env.reset()
+    dots = td["scandots"][0].reshape(12, 11)
+    xs = np.linspace(-0.45, 1.2, 12) + env.worlds.qpos[0, 0]
+    on_step = xs > 0.5 + 1e-6
+    diff = dots[on_step].mean() - dots[~on_step].mean()
+    assert diff.item() == pytest.approx(0.1, abs=1e-5)
+    assert dots[~on_step].std().item() < 1e-6
+
+
+def test_bad_actions():
+    env = make(n=2)
+    env.reset()
+    with pytest.raises(ValueError, match=r"action must have shape \(2, 10\).*got \(2, 12\)"):
+        act(env, torch.zeros(2, 12))
+    a = torch.zeros(2, env.A)
+    a[1, 3] = float("nan")
+    nxt = act(env, a)
+    assert nxt["info", "bad_action"].squeeze(-1).tolist() == [False, True]
+    assert env.bad_action_total == 1
+    assert torch.isfinite(nxt["proprio"]).all()
+
+
+def test_diverged_world_resets_alone_and_is_reported():
+    env = make(n=3)
+    env.reset()
+    act(env)
+    env.worlds.qvel[2] = np.nan
+    nxt = act(env)
+    assert nxt["info", "diverged"].squeeze(-1).tolist() == [False, False, True]
+    assert nxt["truncated"].squeeze(-1).tolist() == [False, False, True]
+    assert env.diverged_total == 1
+    assert torch.isfinite(nxt["proprio"]).all()
+
+
+def test_bad_config_values():
+    with pytest.raises(ValueError, match="unknown mode 'train'"):
+        HikingEnvConfig(mode="train")
+    with pytest.raises(ValueError, match="num_envs must be a positive integer, got 0"):
+        HikingEnvConfig(num_envs=0)
+    with pytest.raises(ValueError, match=r"levels \[7\] out of range"):
+        make(levels=(7,))
+
+
+def test_gymnasium_check_env():
+    import gymnasium
+    from gymnasium.utils.env_checker import check_env
+
+    import legoh_rl.envs  # noqa: F401  (registers the ids)
+
+    env = gymnasium.make("LegoH/Hike-H1-v0", trails=BoxScene(), num_threads=1)
+    check_env(env.unwrapped, skip_render_check=True)
+    obs, _ = env.reset(seed=0)
+    assert obs["proprio"].shape == (37,) and obs["proprio"].dtype == np.float32

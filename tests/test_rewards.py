@@ -1,0 +1,118 @@
+"""Each reward term of the paper's table on a hand-made state (issue 4)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from legoh_rl.envs.rewards import (
+    PAPER_WEIGHTS,
+    REWARD_FUNCTIONS,
+    RewardState,
+    compute_rewards,
+    reward_weights,
+)
+from legoh_rl.envs.robots import ROBOTS
+
+
+def state(**kw):
+    """Two worlds, two joints; every field zero/neutral unless given."""
+    n, a = 2, 2
+    base = dict(
+        lin_vel_w=np.zeros((n, 3)), ang_vel_b=np.zeros((n, 3)), gravity_b=np.tile([0.0, 0.0, -1.0], (n, 1)),
+        goal_dir_w=np.tile([1.0, 0.0], (n, 1)), yaw=np.zeros(n), cmd_speed=np.full(n, 0.8),
+        q=np.zeros((n, a)), dq=np.zeros((n, a)), dq_prev=np.zeros((n, a)), q_default=np.zeros(a),
+        q_limits=np.array([[-1.0, 1.0], [-0.5, 0.5]]), hip_idx=np.array([0]),
+        torques=np.zeros((n, a)), torques_prev=np.zeros((n, a)), action=np.zeros((n, a)), action_prev=np.zeros((n, a)),
+        foot_force=np.zeros((n, 2, 3)), penalised_force=np.zeros((n, 3, 3)),
+        feet_air_time=np.zeros((n, 2)), first_contact=np.zeros((n, 2), bool), feet_at_edge=np.zeros((n, 2), bool),
+        terrain_level=np.zeros(n, int), base_height=np.full(n, 1.05), base_height_target=1.05,
+        goal_dist=np.full(n, 5.0), reach_radius=0.5, dt=0.02,
+    )
+    base.update(kw)
+    return RewardState(**base)
+
+
+def test_every_paper_term_has_a_function():
+    assert set(PAPER_WEIGHTS) == set(REWARD_FUNCTIONS)
+
+
+def test_tracking_goal_velocity():
+    # world 0: 0.4 m/s straight at the goal -> 0.4/0.8; world 1: 2 m/s -> capped at cmd -> ~1
+    s = state(lin_vel_w=np.array([[0.4, 0.3, 0.0], [2.0, 0.0, 0.0]]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["tracking_goal_vel"](s), [0.4 / 0.80001, 0.8 / 0.80001], rtol=1e-9)
+
+
+def test_tracking_yaw_wraps():
+    # goal straight ahead (0 rad); world 0 faces 0.5 rad off; world 1 faces pi - 0.1 past it: error wraps
+    s = state(goal_dir_w=np.array([[1.0, 0.0], [-1.0, 0.0]]), yaw=np.array([0.5, -math.pi + 0.1 - 0.2]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["tracking_yaw"](s), [math.exp(-0.5), math.exp(-0.1)], rtol=1e-9)
+
+
+def test_base_motion_penalties():
+    s = state(lin_vel_w=np.array([[0, 0, 0.5], [0, 0, -2.0]]), ang_vel_b=np.array([[1.0, 2.0, 9.0], [0, 0, 0]]),
+              gravity_b=np.array([[0.6, 0.0, -0.8], [0.0, 0.0, -1.0]]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["lin_vel_z"](s), [0.25, 4.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["ang_vel_xy"](s), [5.0, 0.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["orientation"](s), [0.36, 0.0])
+
+
+def test_joint_and_torque_penalties():
+    s = state(dq=np.array([[1.0, 0.0], [0.0, 0.0]]), dq_prev=np.array([[0.0, 0.2], [0.0, 0.0]]),
+              torques=np.array([[10.0, -20.0], [0, 0]]), torques_prev=np.array([[7.0, -20.0], [0, 1.0]]),
+              action=np.array([[0.3, 0.4], [0, 0]]), q=np.array([[0.2, -0.3], [1.5, 0.7]]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["dof_acc"](s), [(1 / 0.02) ** 2 + (0.2 / 0.02) ** 2, 0.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["torques"](s), [500.0, 0.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["delta_torques"](s), [9.0, 1.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["action_rate"](s), [0.5, 0.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["dof_error"](s), [0.13, 2.74])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["hip_pos"](s), [0.04, 2.25])  # joint 0 only
+    # limits [-1, 1] and [-0.5, 0.5]: world 1 is 0.5 past on joint 0 and 0.2 past on joint 1
+    np.testing.assert_allclose(REWARD_FUNCTIONS["dof_pos_limits"](s), [0.0, 0.7])
+
+
+def test_contact_terms():
+    pen = np.zeros((2, 3, 3))
+    pen[0, 0] = [0.0, 0.0, 0.05]  # below the 0.1 N threshold
+    pen[0, 1] = [0.2, 0.0, 0.0]
+    pen[0, 2] = [0.0, 5.0, 0.0]
+    feet = np.zeros((2, 2, 3))
+    feet[0, 0] = [50.0, 0.0, 10.0]  # horizontal 50 > 4 x 10: stumble
+    feet[1, 0] = [30.0, 0.0, 10.0]  # 30 < 40: no stumble
+    s = state(penalised_force=pen, foot_force=feet)
+    np.testing.assert_allclose(REWARD_FUNCTIONS["collision"](s), [2.0, 0.0])
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_stumble"](s), [1.0, 0.0])
+
+
+def test_feet_edge_only_above_level_3():
+    s = state(feet_at_edge=np.array([[True, True], [True, False]]), terrain_level=np.array([3, 4]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_edge"](s), [0.0, 1.0])
+
+
+def test_feet_air_time():
+    s = state(feet_air_time=np.array([[0.8, 0.3], [0.8, 0.0]]), first_contact=np.array([[True, True], [False, False]]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_air_time"](s), [0.3 - 0.2, 0.0])
+
+
+def test_base_height_and_point_navigation():
+    s = state(base_height=np.array([0.95, 1.05]), goal_dist=np.array([0.3, 4.0]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["base_height"](s), [0.01, 0.0], atol=1e-12)
+    np.testing.assert_allclose(REWARD_FUNCTIONS["pn_distance"](s), [1.0, -3.0])
+
+
+def test_weights_per_robot_and_dt_scaling():
+    h1 = reward_weights(ROBOTS["h1"].reward_weights)
+    g1 = reward_weights(ROBOTS["g1"].reward_weights, student=True)
+    assert h1["base_height"] == -100.0 and g1["base_height"] == -35.0
+    assert h1["feet_air_time"] == 1.0 and g1["feet_air_time"] == 0.5
+    assert "dof_pos_limits" not in h1 and g1["dof_pos_limits"] == -5.0
+    assert "pn_distance" not in h1 and g1["pn_distance"] == 1.0
+    s = state(lin_vel_w=np.array([[0, 0, 0.5], [0, 0, 0]]))
+    total, terms = compute_rewards(s, {"lin_vel_z": -2.0, "tracking_yaw": 0.5})
+    np.testing.assert_allclose(terms["lin_vel_z"], [-2.0 * 0.25 * 0.02, 0.0])
+    np.testing.assert_allclose(total, terms["lin_vel_z"] + 0.5 * 0.02)
+
+
+def test_unknown_override_lists_terms():
+    with pytest.raises(ValueError, match=r"unknown reward term 'speed'.*tracking_yaw"):
+        reward_weights(overrides={"speed": 1.0})
