@@ -487,7 +487,8 @@ class HikingEnv(EnvBase):
         N, dev = self.cfg.num_envs, self.device
 
         def t(x, dtype=torch.float32):
-            return torch.as_tensor(np.ascontiguousarray(x), device=dev).to(dtype)
+            # always a copy: the env keeps updating its buffers (depth, tick) in place
+            return torch.tensor(np.asarray(x), dtype=dtype, device=dev)
 
         data = {k: t(v, torch.bool) if k == "perception_tick" else t(v) for k, v in obs.items()}
         data["reward_terms"] = {k: t(v).reshape(N, 1) for k, v in reward_terms.items()}

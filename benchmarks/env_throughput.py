@@ -1,0 +1,77 @@
+"""Control steps/s of the full HikingEnv vs the physics-only limit of the same worlds.
+
+    python benchmarks/env_throughput.py [--seconds 5] [--threads 2] [--robots h1 g1] [--n 64 256]
+
+For each robot and N: oracle mode (no depth) and student mode (64x64 depth, cast every 5th
+step), beside the physics-only limit measured in the same run (the same model and worlds
+stepped with no observations, rewards or resets), and the ratios. Actions are random
+(N(0, 0.5)), so worlds fall and reset as in early training.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import time
+
+import numpy as np
+import torch
+from tensordict import TensorDict
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+
+
+def env_rate(env: HikingEnv, seconds: float) -> float:
+    n = env.batch_size[0]
+    env.reset()
+    gen = torch.Generator().manual_seed(0)
+    td = TensorDict({"action": torch.zeros(n, env.A)}, batch_size=env.batch_size)
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        td["action"] = 0.5 * torch.randn(n, env.A, generator=gen)
+        _, td = env.step_and_maybe_reset(td)
+        steps += 1
+    return steps * n / (time.perf_counter() - start)
+
+
+def physics_rate(env: HikingEnv, seconds: float) -> float:
+    w = env.worlds
+    rng = np.random.default_rng(0)
+    q0 = env.q_default
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        w.set_joint_targets(q0 + 0.125 * rng.normal(size=(w.num_worlds, q0.size)))
+        w.step()
+        steps += 1
+    return steps * w.num_worlds / (time.perf_counter() - start)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--seconds", type=float, default=5.0)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--robots", nargs="+", default=["h1", "g1"])
+    parser.add_argument("--n", nargs="+", type=int, default=[64, 256])
+    parser.add_argument("--profile", action="store_true", help="print the top functions of the student run")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    print(f"{'robot':5} {'N':>4} {'mode':8} {'env steps/s':>12} {'physics-only':>13} {'ratio':>6}")
+    for robot in args.robots:
+        for n in args.n:
+            for mode in ("oracle", "student"):
+                cfg = HikingEnvConfig(robot=robot, num_envs=n, mode=mode, num_threads=args.threads, levels=(0, 1, 2))
+                env = HikingEnv(cfg)
+                rate = env_rate(env, args.seconds)
+                if args.profile and mode == "student":
+                    prof = cProfile.Profile()
+                    prof.enable()
+                    env_rate(env, args.seconds)
+                    prof.disable()
+                    pstats.Stats(prof).sort_stats("cumulative").print_stats(15)
+                phys = physics_rate(env, args.seconds)
+                print(f"{robot:5} {n:4d} {mode:8} {rate:12.0f} {phys:13.0f} {rate / phys:6.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
