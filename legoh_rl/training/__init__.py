@@ -1,0 +1,1 @@
+"""Shared training utilities used by the recipes: checkpoints, loggers, evaluation."""

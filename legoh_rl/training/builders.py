@@ -1,0 +1,80 @@
+"""Small builders shared by the recipes: env configs, the oracle, checkpoint metadata."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.curriculum import CurriculumConfig
+from legoh_rl.envs.randomization import DomainRandConfig
+from legoh_rl.envs.robots import get_robot_spec
+from legoh_rl.envs.trail_source import validate_categories
+from legoh_rl.modules.configs import OracleConfig
+from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
+
+__all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "require_positive"]
+
+
+def require_positive(section: str, cfg: Mapping, *names: str) -> None:
+    """Refuse non-positive counts with a message naming ``section.name`` and the value."""
+    for name in names:
+        value = cfg[name]
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
+            raise ValueError(f"{section}.{name} must be a positive number, got {value!r}")
+
+
+def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
+    """A :class:`HikingEnvConfig` from a recipe's ``env`` section (validated, nothing built)."""
+    get_robot_spec(cfg["robot"])  # unknown robot: clear error before any work
+    categories = validate_categories(cfg.get("categories", HikingEnvConfig.categories))
+    kwargs = dict(
+        robot=cfg["robot"],
+        num_envs=int(cfg["num_envs"]),
+        mode=mode,
+        categories=categories,
+        levels=tuple(int(v) for v in cfg.get("levels", (0,))),
+        variants=int(cfg.get("variants", 2)),
+        num_threads=cfg.get("num_threads"),
+        seed=int(cfg.get("seed", 0)),
+        episode_length_s=float(cfg.get("episode_length_s", 20.0)),
+        cmd_speed=float(cfg.get("cmd_speed", 0.8)),
+    )
+    if not cfg.get("domain_rand", True):
+        kwargs["domain_rand"] = DomainRandConfig.off()
+    if not cfg.get("curriculum", True):
+        kwargs["curriculum"] = CurriculumConfig(enabled=False)
+    kwargs.update(overrides)
+    return HikingEnvConfig(**kwargs)
+
+
+def make_env(cfg: Mapping, mode: str, trails=None, **overrides) -> HikingEnv:
+    """Build the batched env of a recipe's ``env`` section."""
+    return HikingEnv(env_config(cfg, mode, **overrides), trails=trails)
+
+
+def oracle_config(env: HikingEnv, init_std: float = 1.0) -> OracleConfig:
+    """Oracle network sizes read from the env's specs."""
+    spec = env.observation_spec
+    return OracleConfig(
+        proprio_dim=spec["proprio"].shape[-1],
+        num_actions=env.action_spec.shape[-1],
+        privileged_dim=spec["privileged"].shape[-1],
+        scandots_dim=spec["scandots"].shape[-1],
+        num_goals=spec["expert_goals"].shape[-2],
+        init_std=init_std,
+    )
+
+
+def make_oracle(env: HikingEnv, init_std: float = 1.0):
+    """``(networks, actor, critic)`` of the oracle sized for ``env``."""
+    ocfg = oracle_config(env, init_std)
+    networks = OracleNetworks(ocfg)
+    actor, critic = make_oracle_actor_critic(ocfg, networks=networks)
+    return networks, actor, critic
+
+
+def policy_meta(env: HikingEnv, kind: str) -> dict:
+    """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind."""
+    spec = env.observation_spec
+    layout = {k: tuple(spec[k].shape[1:]) for k in ("proprio", "privileged", "scandots", "expert_goals")}
+    return {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}

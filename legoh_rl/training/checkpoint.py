@@ -1,0 +1,76 @@
+"""Atomic, resumable checkpoints.
+
+A checkpoint is one ``torch.save`` file holding everything a run needs to continue: model and
+optimiser states, schedulers, env state (curriculum, rng, counters), torch and numpy RNG states,
+the iteration and frame counters, the logger's run id, and a ``meta`` block (robot, observation
+layout, action size, kind of policy) that loaders check before using it.
+
+Writes go to a temporary file in the same folder, are flushed to disk, then renamed over the
+target: a run killed while writing leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+__all__ = ["save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state"]
+
+
+def rng_state() -> dict:
+    """Torch, numpy-global and python RNG states."""
+    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+
+
+def set_rng_state(state: dict) -> None:
+    """Restore :func:`rng_state`."""
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
+    """Write ``payload`` to ``path`` atomically (temp file + fsync + rename); return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """Load a checkpoint written by :func:`save_checkpoint`.
+
+    Raises:
+        FileNotFoundError: no file at ``path`` (the message names it).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    return torch.load(path, map_location="cpu", weights_only=False)
+
+
+def check_meta(meta: dict, expected: dict, path: str | os.PathLike = "checkpoint") -> None:
+    """Refuse a checkpoint made for another robot, observation layout or policy kind.
+
+    Raises:
+        ValueError: naming each mismatching field with both values.
+    """
+    bad = [f"{k}: checkpoint has {meta.get(k)!r}, this run needs {v!r}" for k, v in expected.items() if meta.get(k) != v]
+    if bad:
+        raise ValueError(f"{path} does not fit this run: " + "; ".join(bad))

@@ -1,0 +1,176 @@
+"""Train the LEGO-H oracle with PPO (paper "Oracle Policy Learning").
+
+The oracle sees proprioception, scandots, privileged state and the expert navigation goals, and
+learns the motor skills the student later distils. Every reward term and episode metric is
+logged (wandb offline by default), the curriculum moves robots across trail levels, and
+checkpoints are written atomically and can be resumed.
+
+    python recipes/oracle_ppo.py                                  # CPU defaults
+    python recipes/oracle_ppo.py env.robot=g1 env.num_envs=256
+    python recipes/oracle_ppo.py checkpoint.resume=auto           # continue the last run
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType
+from tqdm import tqdm
+
+from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
+from legoh_rl.training.builders import make_env, make_oracle, policy_meta, require_positive
+from legoh_rl.training.checkpoint import check_meta, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from legoh_rl.training.logging import make_logger
+from legoh_rl.training.stats import episode_stats, reward_term_stats
+
+
+def make_ppo(actor, critic, cfg: DictConfig):
+    ppo_cfg = PPOConfig(
+        clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff, gamma=cfg.gamma, lmbda=cfg.lmbda,
+        learning_rate=cfg.learning_rate, desired_kl=cfg.desired_kl, num_epochs=cfg.num_epochs,
+        num_minibatches=cfg.num_minibatches, max_grad_norm=cfg.max_grad_norm,
+    )
+    loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
+    optim = torch.optim.Adam(loss.parameters(), lr=ppo_cfg.learning_rate)
+    sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
+    return loss, gae, optim, sched
+
+
+def validate(cfg: DictConfig) -> None:
+    require_positive("env", cfg.env, "num_envs")
+    require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
+    require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
+    require_positive("checkpoint", cfg.checkpoint, "every")
+    resume = cfg.checkpoint.resume
+    if resume not in (None, "auto") and not Path(resume).is_file():
+        raise FileNotFoundError(f"checkpoint.resume: no checkpoint at {resume}")
+
+
+def resume_path(cfg: DictConfig) -> Path | None:
+    resume = cfg.checkpoint.resume
+    if resume is None:
+        return None
+    if resume == "auto":
+        last = Path(cfg.checkpoint.dir) / "last.pt"
+        return last if last.is_file() else None
+    return Path(resume)
+
+
+def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
+    """Epochs x mini-batches of clipped PPO on one collected batch; returns mean diagnostics."""
+    with torch.no_grad():
+        gae(data)
+    flat = data.reshape(-1)
+    sums: dict[str, float] = {}
+    count = 0
+    for _ in range(cfg.ppo.num_epochs):
+        for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
+            mb = flat[idx]
+            out = loss(mb)
+            total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+            optim.zero_grad()
+            total.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
+            optim.step()
+            kl = policy_kl(actor, mb)
+            lr = sched.step(kl)
+            for key, value in (("loss/objective", out["loss_objective"]), ("loss/critic", out["loss_critic"]),
+                               ("loss/entropy", out["loss_entropy"]), ("train/kl", kl), ("train/grad_norm", grad_norm),
+                               ("train/clip_fraction", out.get("clip_fraction", torch.tensor(0.0)))):
+                sums[key] = sums.get(key, 0.0) + float(value)
+            count += 1
+    stats = {k: v / count for k, v in sums.items()}
+    stats["train/lr"] = lr
+    stats["train/action_std"] = float(flat["scale"].mean())
+    return stats
+
+
+def train(cfg: DictConfig) -> dict:
+    """Run the oracle training described by ``cfg``; returns a summary of the last iteration."""
+    validate(cfg)
+    torch.set_num_threads(int(cfg.torch_threads))
+    torch.manual_seed(int(cfg.env.seed))
+    env = make_env(cfg.env, mode="oracle")
+    networks, actor, critic = make_oracle(env, cfg.model.init_std)
+    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
+    meta = policy_meta(env, "oracle")
+    ckpt_dir = Path(cfg.checkpoint.dir)
+    iteration, frames, run_id = 0, 0, None
+    path = resume_path(cfg)
+    if path is not None:
+        state = load_checkpoint(path)
+        check_meta(state["meta"], meta, path)
+        loss.load_state_dict(state["loss"])
+        optim.load_state_dict(state["optim"])
+        sched.load_state_dict(state["sched"])
+        env.load_state_dict(state["env"])
+        set_rng_state(state["rng"])
+        iteration, frames, run_id = state["iteration"], state["frames"], state.get("run_id")
+        print(f"resumed from {path}: iteration {iteration}, {frames} frames")
+
+    logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
+                         cfg.logger.online, run_id, OmegaConf.to_container(cfg, resolve=True))
+    run_id = getattr(getattr(logger, "experiment", None), "id", run_id)
+    n = cfg.env.num_envs
+    frames_per_batch = n * cfg.collector.steps_per_env
+    remaining = int(cfg.collector.total_frames) - frames
+    if remaining < frames_per_batch:
+        print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
+        return {"iteration": iteration, "frames": frames}
+    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=remaining,
+                          exploration_type=ExplorationType.RANDOM)
+
+    def checkpoint() -> Path:
+        return save_checkpoint(ckpt_dir / "last.pt", {
+            "meta": meta, "loss": loss.state_dict(), "actor": actor.state_dict(), "networks": networks.state_dict(),
+            "oracle_config": networks.cfg.__dict__, "optim": optim.state_dict(), "sched": sched.state_dict(),
+            "env": env.state_dict(), "rng": rng_state(), "iteration": iteration, "frames": frames,
+            "run_id": run_id, "config": OmegaConf.to_container(cfg, resolve=True),
+        })
+
+    summary: dict = {}
+    start = time.perf_counter()
+    bar = tqdm(total=remaining, unit="frames", desc="oracle PPO")
+    for data in collector:
+        t_update = time.perf_counter()
+        stats = ppo_update(data, loss, gae, optim, sched, actor, cfg)
+        collector.update_policy_weights_()
+        iteration += 1
+        frames += data.numel()
+        bar.update(data.numel())
+        elapsed = time.perf_counter() - start
+        stats.update(reward_term_stats(data))
+        stats.update(episode_stats(data))
+        stats.update({"train/frames": frames, "train/fps": frames_per_batch / max(time.perf_counter() - t_update + 1e-9, 1e-9),
+                      "train/fps_total": (frames - (int(cfg.collector.total_frames) - remaining)) / elapsed,
+                      "curriculum/mean_level": float(env.curriculum.levels.mean()),
+                      "env/diverged_total": env.diverged_total, "env/bad_action_total": env.bad_action_total})
+        if iteration % cfg.logger.log_every == 0:
+            for key, value in stats.items():
+                logger.log_scalar(key, value, step=frames)
+        bar.set_postfix(reward=f"{stats['reward/total']:.3f}", level=f"{stats['curriculum/mean_level']:.2f}",
+                        sr=f"{stats.get('episode/success', float('nan')):.0f}")
+        if iteration % cfg.checkpoint.every == 0:
+            checkpoint()
+        summary = {"iteration": iteration, "frames": frames, **stats}
+    bar.close()
+    collector.shutdown()
+    summary["checkpoint"] = str(checkpoint())
+    if hasattr(logger, "experiment") and hasattr(logger.experiment, "finish"):
+        logger.experiment.finish()
+    return summary
+
+
+@hydra.main(config_path="config", config_name="oracle_ppo", version_base=None)
+def main(cfg: DictConfig) -> None:
+    summary = train(cfg)
+    print(f"done: {summary.get('iteration')} iterations, {summary.get('frames')} frames; checkpoint {summary.get('checkpoint')}")
+
+
+if __name__ == "__main__":
+    main()
