@@ -517,6 +517,6 @@ class HikingEnv(EnvBase):
 
 
 def _default_trails(cfg: HikingEnvConfig) -> TrailSource:
-    from legoh_rl.envs.trails import build_trail_grid
+    from legoh_rl.envs.trail_source import trails_for
 
-    return build_trail_grid(cfg)
+    return trails_for(cfg.categories, cfg.variants, cfg.seed)
