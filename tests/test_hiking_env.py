@@ -214,3 +214,39 @@ def test_gymnasium_check_env():
     check_env(env.unwrapped, skip_render_check=True)
     obs, _ = env.reset(seed=0)
     assert obs["proprio"].shape == (37,) and obs["proprio"].dtype == np.float32
+
+
+def test_domain_randomisation_per_world_in_paper_ranges():
+    env = make(n=4, scene=BoxScene())
+    td = env.reset()
+    dr, w, b = env.randomizer, env.worlds, env.built
+    assert ((dr.friction >= 0.6) & (dr.friction <= 2.0)).all() and np.unique(dr.friction).size == 4
+    assert ((dr.mass_offset >= 0) & (dr.mass_offset <= 3)).all()
+    assert (np.abs(dr.com_offset) <= 0.2).all()
+    assert ((dr.motor_strength >= 0.8) & (dr.motor_strength <= 1.2)).all()
+    mass = w.batch.expanded("body_mass")[:, b.base_body_id]
+    np.testing.assert_allclose(mass, w.nominal("body_mass")[b.base_body_id] + dr.mass_offset)
+    kp = w.batch.expanded("actuator_gainprm")[:, b.actuator_ids, 0]
+    np.testing.assert_allclose(kp, np.array(env.robot.kp) * dr.motor_strength)
+    geom = b.robot_geom_ids[w.model.geom_contype[b.robot_geom_ids] != 0][0]
+    np.testing.assert_allclose(w.batch.expanded("geom_friction")[:, geom, 0], dr.friction)
+    priv = td["privileged"].numpy()
+    np.testing.assert_allclose(priv[:, 3], dr.friction, rtol=1e-6)
+    np.testing.assert_allclose(priv[:, 8:], dr.motor_strength, rtol=1e-6)
+    # same seed, same draws
+    env2 = make(n=4, scene=BoxScene())
+    env2.reset()
+    np.testing.assert_array_equal(env2.randomizer.friction, dr.friction)
+
+
+def test_curriculum_moves_levels_by_progress():
+    from legoh_rl.envs.curriculum import Curriculum, CurriculumConfig
+
+    c = Curriculum(CurriculumConfig(), num_levels=5, levels=np.array([0, 2, 2, 4, 4]))
+    rng = np.random.default_rng(0)
+    ids = np.arange(5)
+    progress = np.array([9.0, 1.0, 5.0, 9.0, 0.0])
+    new = c.update(ids, progress, np.full(5, 10.0), np.array([False, False, False, False, False]), rng)
+    # 90% -> up; 10% -> down; 50% -> stays; top level + up -> random level; 0% at level 4 -> 3
+    assert new[0] == 1 and new[1] == 1 and new[2] == 2 and 0 <= new[3] < 5 and new[4] == 3
+    assert c.update(np.array([1]), np.array([0.0]), np.array([10.0]), np.array([True]), rng)[0] == 2  # reached

@@ -215,9 +215,10 @@ class BatchedWorlds:
             self._nominal[field] = np.array(getattr(self.model, field), copy=True)
         return self._nominal[field]
 
-    def set_const(self) -> None:
-        """Recompute derived constants after changing masses or inertias (mj_setConst)."""
-        self.batch.set_const()
+    def set_const(self, ids: np.ndarray | None = None) -> None:
+        """Recompute derived constants of worlds ``ids`` (all if None) after changing masses
+        or inertias (mj_setConst)."""
+        self.batch.set_const(None if ids is None else self._ids(ids).astype(np.int32))
 
     # ------------------------------------------------------------------ helpers
     def _ids(self, ids: np.ndarray | None) -> np.ndarray:

@@ -121,7 +121,7 @@ class DomainRandomizer:
             bias[ids[:, None], self._acts[None, :], 1] = b0[self._acts, 1] * k
             bias[ids[:, None], self._acts[None, :], 2] = b0[self._acts, 2] * k
         if mass_changed:
-            w.set_const()
+            w.set_const(ids)
 
     def push(self, due: np.ndarray, rng: np.random.Generator) -> None:
         """Set the base xy velocity of worlds where ``due`` (N,) bool to U(-v, v) per axis."""
