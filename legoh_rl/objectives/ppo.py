@@ -1,0 +1,257 @@
+"""PPO with legged-locomotion (rsl_rl) defaults on top of torchrl's ClipPPOLoss and GAE.
+
+Nothing here re-implements PPO: :func:`make_ppo_loss` configures
+:class:`torchrl.objectives.ClipPPOLoss` and its :class:`torchrl.objectives.value.GAE`
+estimator; :class:`AdaptiveKLScheduler` is rsl_rl's KL-adaptive learning rate and
+:func:`policy_kl` measures the KL it needs from a batch.
+
+Keys (torchrl defaults, matching ``docs/keys.md``): the actor writes ``loc`` and ``scale``
+and samples ``action`` with its log-probability ``action_log_prob``; the critic writes
+``state_value``; GAE writes ``advantage`` and ``value_target``. The collector stores the
+rollout-time ``loc`` / ``scale`` in the batch: these are the *old* distribution parameters
+:func:`policy_kl` compares to the current actor's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from tensordict import NestedKey, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torch import Tensor
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.utils import ValueEstimators
+from torchrl.objectives.value import GAE
+
+__all__ = [
+    "AdaptiveKLScheduler",
+    "PPOConfig",
+    "gaussian_kl",
+    "make_ppo_loss",
+    "policy_kl",
+]
+
+
+@dataclass
+class PPOConfig:
+    """PPO hyper-parameters, defaults from rsl_rl / legged_gym (used by the paper's pipeline).
+
+    Loss (passed to ``ClipPPOLoss`` / ``GAE``):
+        clip_epsilon: ratio clip (0.2).
+        entropy_coeff: entropy bonus weight (0.01).
+        critic_coeff: value loss weight (1.0, rsl_rl ``value_loss_coef``).
+        loss_critic_type: ``"l2"``: rsl_rl's squared error ``(V - R)^2`` (no 1/2).
+        clip_value: clipped value loss (rsl_rl ``use_clipped_value_loss``): the value
+            prediction may move at most ``clip_epsilon`` from the rollout value.
+        normalize_advantage: standardise advantages (per mini-batch in torchrl).
+        gamma, lmbda: GAE discount (0.99) and lambda (0.95).
+
+    Optimisation (read by recipes; not used by the loss):
+        learning_rate: initial Adam learning rate (1e-3).
+        desired_kl: target of :class:`AdaptiveKLScheduler` (0.01).
+        min_lr, max_lr: learning-rate clamp of the scheduler (1e-5, 1e-2).
+        max_grad_norm: gradient-norm clip (1.0).
+        num_epochs, num_minibatches: passes over each batch (5) and mini-batches per pass (4).
+    """
+
+    clip_epsilon: float = 0.2
+    entropy_coeff: float = 0.01
+    critic_coeff: float = 1.0
+    loss_critic_type: str = "l2"
+    clip_value: bool = True
+    normalize_advantage: bool = True
+    gamma: float = 0.99
+    lmbda: float = 0.95
+    learning_rate: float = 1e-3
+    desired_kl: float = 0.01
+    min_lr: float = 1e-5
+    max_lr: float = 1e-2
+    max_grad_norm: float = 1.0
+    num_epochs: int = 5
+    num_minibatches: int = 4
+
+    def __post_init__(self) -> None:
+        if not 0 < self.clip_epsilon < 1:
+            raise ValueError(f"PPOConfig.clip_epsilon must be in (0, 1), got {self.clip_epsilon}")
+        for name in ("gamma", "lmbda"):
+            v = getattr(self, name)
+            if not 0 <= v <= 1:
+                raise ValueError(f"PPOConfig.{name} must be in [0, 1], got {v}")
+        for name in ("entropy_coeff", "critic_coeff"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"PPOConfig.{name} must be a finite number >= 0, got {v}")
+        if self.loss_critic_type not in ("l1", "l2", "smooth_l1"):
+            raise ValueError(
+                f"PPOConfig.loss_critic_type must be 'l1', 'l2' or 'smooth_l1', "
+                f"got {self.loss_critic_type!r}"
+            )
+        if not 0 < self.min_lr <= self.learning_rate <= self.max_lr:
+            raise ValueError(
+                f"PPOConfig needs 0 < min_lr <= learning_rate <= max_lr, got min_lr="
+                f"{self.min_lr}, learning_rate={self.learning_rate}, max_lr={self.max_lr}"
+            )
+        if not self.desired_kl > 0:
+            raise ValueError(f"PPOConfig.desired_kl must be > 0, got {self.desired_kl}")
+
+
+def make_ppo_loss(
+    actor: TensorDictModuleBase,
+    critic: TensorDictModuleBase,
+    cfg: PPOConfig | None = None,
+) -> tuple[ClipPPOLoss, GAE]:
+    """Build torchrl's ``ClipPPOLoss`` with a ``GAE`` value estimator, rsl_rl defaults.
+
+    Args:
+        actor: a probabilistic actor (e.g. ``ProbabilisticActor`` over ``loc``/``scale`` with
+            ``IndependentNormal``) returning ``action`` and ``action_log_prob``.
+        critic: a value module writing ``state_value`` (``(*B, 1)``).
+        cfg: hyper-parameters (:class:`PPOConfig` defaults if ``None``).
+
+    Returns:
+        ``(loss, gae)``. ``gae`` is ``loss.value_estimator``: call ``gae(batch)`` under
+        ``torch.no_grad()`` once per collected batch to write ``advantage``,
+        ``value_target`` and ``state_value`` (the rollout value the clipped value loss uses),
+        then ``loss(minibatch)`` returns ``loss_objective``, ``loss_critic``,
+        ``loss_entropy`` (sum them) and diagnostics (``kl_approx``, ``clip_fraction``, ...).
+        Padding masks written by torchrl (``("collector", "mask")``) are honoured by the loss.
+    """
+    cfg = cfg if cfg is not None else PPOConfig()
+    loss = ClipPPOLoss(
+        actor,
+        critic,
+        clip_epsilon=cfg.clip_epsilon,
+        entropy_bonus=cfg.entropy_coeff > 0,
+        entropy_coeff=cfg.entropy_coeff,
+        critic_coeff=cfg.critic_coeff,
+        loss_critic_type=cfg.loss_critic_type,
+        normalize_advantage=cfg.normalize_advantage,
+        clip_value=cfg.clip_value,
+    )
+    loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
+    return loss, loss.value_estimator
+
+
+def gaussian_kl(old_loc: Tensor, old_scale: Tensor, new_loc: Tensor, new_scale: Tensor) -> Tensor:
+    """``KL(N(old_loc, old_scale) || N(new_loc, new_scale))`` for diagonal Gaussians.
+
+    Summed over the last (action) dimension, as rsl_rl::
+
+        sum_i log(s1_i / s0_i) + (s0_i^2 + (m0_i - m1_i)^2) / (2 s1_i^2) - 1/2
+
+    Shapes: ``(*B, A)`` each -> ``(*B,)``.
+    """
+    return (
+        torch.log(new_scale / old_scale)
+        + (old_scale.pow(2) + (old_loc - new_loc).pow(2)) / (2.0 * new_scale.pow(2))
+        - 0.5
+    ).sum(-1)
+
+
+def policy_kl(
+    actor: TensorDictModuleBase,
+    tensordict: TensorDictBase,
+    *,
+    old_loc_key: NestedKey = "loc",
+    old_scale_key: NestedKey = "scale",
+    new_loc_key: NestedKey = "loc",
+    new_scale_key: NestedKey = "scale",
+    mask_key: NestedKey | None = ("collector", "mask"),
+) -> Tensor:
+    """Mean KL between the rollout policy stored in a batch and the current ``actor``.
+
+    The old parameters are read from ``tensordict`` at ``old_loc_key`` / ``old_scale_key``
+    (written by the collector, ``(*B, A)``); the new ones by running ``actor`` (no grad) on the
+    entries it reads, which leaves ``tensordict`` untouched, and reading ``new_loc_key`` /
+    ``new_scale_key`` from its output. Returns the scalar mean of :func:`gaussian_kl` over the
+    samples whose bool mask at ``mask_key`` is True (all samples if the key is absent or None).
+    """
+    old_loc = tensordict.get(old_loc_key, None)
+    old_scale = tensordict.get(old_scale_key, None)
+    if old_loc is None or old_scale is None:
+        raise KeyError(
+            f"policy_kl needs the rollout distribution at {old_loc_key!r} and {old_scale_key!r}; "
+            "make the collector keep the actor's loc/scale outputs"
+        )
+    with torch.no_grad():
+        inputs = tensordict.select(*actor.in_keys, strict=False)
+        out = actor(inputs)
+        new_loc, new_scale = out.get(new_loc_key), out.get(new_scale_key)
+        kl = gaussian_kl(old_loc, old_scale, new_loc, new_scale)
+        mask = tensordict.get(mask_key, None) if mask_key is not None else None
+        if mask is None:
+            return kl.mean()
+        while mask.ndim > kl.ndim and mask.shape[-1] == 1:
+            mask = mask.squeeze(-1)
+        if mask.shape != kl.shape:
+            raise ValueError(
+                f"mask {mask_key!r} of shape {tuple(mask.shape)} does not match the KL's "
+                f"batch shape {tuple(kl.shape)}"
+            )
+        return torch.where(mask, kl, torch.zeros_like(kl)).sum() / mask.sum().clamp_min(1)
+
+
+class AdaptiveKLScheduler:
+    """rsl_rl's KL-adaptive learning rate.
+
+    After each measurement ``kl`` (e.g. :func:`policy_kl` on a mini-batch)::
+
+        if kl > 2 * target_kl:            lr = max(min_lr, lr / factor)
+        elif 0 < kl < target_kl / 2:      lr = min(max_lr, lr * factor)
+
+    and the new ``lr`` is written into every param group of ``optimizer``.
+
+    Args:
+        optimizer: the policy/critic optimizer (give the masked VAE its own optimizer).
+        target_kl: desired KL (0.01).
+        factor: multiplicative step (1.5).
+        min_lr, max_lr: clamp (1e-5, 1e-2).
+    """
+
+    def __init__(
+        self,
+        optimizer: torch.optim.Optimizer,
+        target_kl: float = 0.01,
+        *,
+        factor: float = 1.5,
+        min_lr: float = 1e-5,
+        max_lr: float = 1e-2,
+    ) -> None:
+        if not target_kl > 0:
+            raise ValueError(f"target_kl must be > 0, got {target_kl!r}")
+        if not factor > 1:
+            raise ValueError(f"factor must be > 1, got {factor!r}")
+        if not 0 < min_lr <= max_lr:
+            raise ValueError(f"need 0 < min_lr <= max_lr, got min_lr={min_lr!r}, max_lr={max_lr!r}")
+        self.optimizer = optimizer
+        self.target_kl = float(target_kl)
+        self.factor = float(factor)
+        self.min_lr = float(min_lr)
+        self.max_lr = float(max_lr)
+        self.lr = min(max(float(optimizer.param_groups[0]["lr"]), self.min_lr), self.max_lr)
+        self._apply()
+
+    def _apply(self) -> None:
+        for group in self.optimizer.param_groups:
+            group["lr"] = self.lr
+
+    def step(self, kl: float | Tensor) -> float:
+        """Update the learning rate from the measured ``kl``; returns the new learning rate."""
+        kl = float(kl.item() if isinstance(kl, Tensor) else kl)
+        if not math.isfinite(kl):
+            raise ValueError(f"AdaptiveKLScheduler.step got a non-finite KL: {kl}")
+        if kl > 2.0 * self.target_kl:
+            self.lr = max(self.min_lr, self.lr / self.factor)
+        elif 0.0 < kl < 0.5 * self.target_kl:
+            self.lr = min(self.max_lr, self.lr * self.factor)
+        self._apply()
+        return self.lr
+
+    def state_dict(self) -> dict[str, float]:
+        return {"lr": self.lr}
+
+    def load_state_dict(self, state: dict[str, float]) -> None:
+        self.lr = float(state["lr"])
+        self._apply()
