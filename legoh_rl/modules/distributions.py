@@ -1,0 +1,81 @@
+"""Diagonal-Gaussian policy head shared by the oracle actor and the student locomotion module.
+
+Distribution: :class:`torchrl.modules.IndependentNormal` (a diagonal Gaussian) with a
+*state-independent* learnable standard deviation, as in rsl_rl's ``ActorCritic`` that
+legged-robot PPO (legged_gym, Extreme Parkour) uses. Why not ``TanhNormal``: actions are
+joint-target offsets (``q* = q_default + 0.25 a``) that the env clips, not a bounded box the
+policy must respect; a Gaussian has an exact log-prob for any action (the DAgger/teacher
+actions included), a closed-form entropy for PPO's entropy bonus, and ``loc`` is the
+deterministic action the student imitates.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict.nn import TensorDictModuleBase
+from torch import nn
+from torchrl.data import Unbounded
+from torchrl.modules import IndependentNormal, ProbabilisticActor
+
+from legoh_rl.modules.keys import NestedKey
+
+__all__ = ["GaussianHead", "make_gaussian_actor"]
+
+
+class GaussianHead(nn.Module):
+    """Map features to ``(loc, scale)``: ``(*B, F) -> (*B, A), (*B, A)``.
+
+    ``loc = Linear(features)`` (or ``loc_bound * tanh(Linear(features))`` when
+    ``loc_bound`` is set); ``scale = exp(log_std)`` is a learnable per-action parameter,
+    independent of the state, initialised to ``init_std`` and floored at ``min_std``.
+    """
+
+    def __init__(
+        self,
+        in_dim: int,
+        num_actions: int,
+        init_std: float = 1.0,
+        loc_bound: float | None = None,
+        min_std: float = 1e-4,
+    ) -> None:
+        super().__init__()
+        if init_std <= 0:
+            raise ValueError(f"GaussianHead: init_std must be positive, got {init_std}")
+        self.mean = nn.Linear(in_dim, num_actions)
+        self.log_std = nn.Parameter(torch.full((num_actions,), math.log(init_std)))
+        self.loc_bound = loc_bound
+        self.min_std = min_std
+
+    def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return ``(loc, scale)``."""
+        loc = self.mean(features)
+        if self.loc_bound is not None:
+            loc = self.loc_bound * torch.tanh(loc)
+        scale = self.log_std.exp().clamp_min(self.min_std).expand_as(loc)
+        return loc, scale
+
+
+def make_gaussian_actor(
+    module: TensorDictModuleBase,
+    num_actions: int,
+    *,
+    loc_key: NestedKey = "loc",
+    scale_key: NestedKey = "scale",
+    action_key: NestedKey = "action",
+) -> ProbabilisticActor:
+    """Wrap ``module`` (which writes ``loc`` and ``scale``) into a ``ProbabilisticActor``.
+
+    The actor samples ``action`` ``(A,)`` from ``IndependentNormal(loc, scale)`` under
+    ``ExplorationType.RANDOM`` (collectors) and returns ``loc`` under ``DETERMINISTIC``;
+    it writes ``action_log_prob`` (``return_log_prob=True``) for PPO.
+    """
+    return ProbabilisticActor(
+        module,
+        in_keys={"loc": loc_key, "scale": scale_key},
+        out_keys=[action_key],
+        distribution_class=IndependentNormal,
+        return_log_prob=True,
+        spec=Unbounded(shape=(num_actions,)),
+    )

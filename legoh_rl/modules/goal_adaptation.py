@@ -1,0 +1,141 @@
+"""TC-ViT part c: recurrent goal adaptation, and the output heads shared by all perception nets.
+
+``z_uni, delta_g0, G = GRU(MLP(gamma, P_B, D_rm, X_pro))`` (paper Sec. "TC-ViT", 3):
+
+* :class:`MemoryInputMLP`: the 2-layer MLP over (features, ``goal_gps``, ``waypoint_gps``,
+  ``proprio``);
+* a memory: torchrl's :class:`~torchrl.modules.GRUModule` (``"gru"``), or the
+  :class:`~legoh_rl.modules.causal_transformer.CausalTransformerMemory` (``"ct"``);
+* :class:`PerceptionHeads`: ``z_uni`` (latent, Tanh like the oracle's ``z_tea``),
+  ``delta_g0`` (2,) and ``goals_uni`` (N, 2), each angle a unit (cos, sin) vector.
+
+:func:`make_memory_perception` composes an encoder TensorDictModule (which writes
+``keys.features``) with these into one TensorDictSequential; TC-ViT, the ConvGRU
+("vanilla") and EP-H baselines differ only in the encoder.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from torch import nn
+from torchrl.modules import GRUModule
+
+from legoh_rl.modules.causal_transformer import CausalTransformerMemory
+from legoh_rl.modules.configs import PerceptionConfig
+from legoh_rl.modules.keys import PerceptionKeys
+from legoh_rl.modules.mlp import build_mlp, unit_normalize
+
+__all__ = ["MemoryInputMLP", "PerceptionHeads", "make_memory_perception", "make_heads_module"]
+
+
+class MemoryInputMLP(nn.Module):
+    """2-layer (configurable) ELU MLP over the concatenated features and goal/proprio inputs.
+
+    ``forward(features (*B, F), goal_gps (*B, 2), waypoint_gps (*B, 2), proprio (*B, D))
+    -> (*B, layers[-1])``.
+    """
+
+    def __init__(self, feature_dim: int, cfg: PerceptionConfig) -> None:
+        super().__init__()
+        io = cfg.io
+        self.dims = (feature_dim, io.gps_dim, io.gps_dim, io.proprio_dim)
+        self.mlp = build_mlp(sum(self.dims), cfg.memory_in_layers, "elu")
+        self.out_dim = int(cfg.memory_in_layers[-1])
+
+    def forward(self, features, goal_gps, waypoint_gps, proprio) -> torch.Tensor:
+        """Concatenate the inputs and apply the MLP."""
+        inputs = (features, goal_gps, waypoint_gps, proprio)
+        names = ("features", "goal_gps", "waypoint_gps", "proprio")
+        for name, x, d in zip(names, inputs, self.dims, strict=True):
+            if x.shape[-1] != d:
+                raise ValueError(f"MemoryInputMLP: {name} has last dim {x.shape[-1]}, expected {d}")
+        return self.mlp(torch.cat(inputs, dim=-1))
+
+
+class PerceptionHeads(nn.Module):
+    """Linear heads: ``h (*B, H) -> z_uni (*B, L), delta_g0 (*B, 2), goals_uni (*B, N, 2)``.
+
+    Angles are unit vectors (cos, sin): the raw 2-vectors are normalised to unit length
+    (:func:`~legoh_rl.modules.mlp.unit_normalize`), so targets given as (cos, sin) can be
+    regressed with SmoothL1 / MSE without the +-pi discontinuity of a raw yaw.
+    """
+
+    def __init__(self, in_dim: int, latent_dim: int, num_goals: int, latent_tanh: bool = True):
+        super().__init__()
+        self.latent = nn.Linear(in_dim, latent_dim)
+        self.latent_act = nn.Tanh() if latent_tanh else nn.Identity()
+        self.delta = nn.Linear(in_dim, 2)
+        self.goals = nn.Linear(in_dim, 2 * num_goals)
+        self.num_goals = num_goals
+
+    def forward(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Return ``(z_uni, delta_g0, goals_uni)``."""
+        z = self.latent_act(self.latent(h))
+        delta = unit_normalize(self.delta(h))
+        goals = unit_normalize(self.goals(h).unflatten(-1, (self.num_goals, 2)))
+        return z, delta, goals
+
+
+def make_heads_module(in_key, in_dim: int, cfg: PerceptionConfig, keys: PerceptionKeys):
+    """TensorDictModule ``in_key -> (z_uni, delta_g0, goals_uni)``."""
+    heads = PerceptionHeads(in_dim, cfg.io.latent_dim, cfg.io.num_goals, cfg.latent_tanh)
+    return TensorDictModule(
+        heads, in_keys=[in_key], out_keys=[keys.z_uni, keys.delta_g0, keys.goals_uni]
+    )
+
+
+def make_memory_perception(
+    encoder: TensorDictModuleBase,
+    feature_dim: int,
+    cfg: PerceptionConfig,
+    keys: PerceptionKeys | None = None,
+    memory: str = "gru",
+) -> TensorDictSequential:
+    """Compose ``encoder -> MemoryInputMLP -> memory -> PerceptionHeads``.
+
+    Args:
+        encoder: writes ``keys.features`` ``(feature_dim,)`` from its own inputs.
+        feature_dim: size of the encoder's output.
+        cfg: perception config (MLP, GRU / CT sizes, heads).
+        keys: TensorDict keys (defaults: :class:`PerceptionKeys`).
+        memory: ``"gru"`` (torchrl ``GRUModule``; state in ``keys.hidden``
+            ``(gru_layers, gru_hidden)``) or ``"ct"`` (causal transformer; state in
+            ``keys.context`` / ``keys.context_valid``).
+
+    Returns:
+        A ``TensorDictSequential`` writing ``z_uni``, ``delta_g0``, ``goals_uni``; call
+        ``torchrl.modules.utils.get_primers_from_module(module)`` for its env primer.
+    """
+    keys = keys or PerceptionKeys()
+    mem_in = MemoryInputMLP(feature_dim, cfg)
+    mem_in_module = TensorDictModule(
+        mem_in,
+        in_keys=[keys.features, keys.goal_gps, keys.waypoint_gps, keys.proprio],
+        out_keys=[keys.memory_in],
+    )
+    if memory == "gru":
+        hidden_next = ("next", *keys.hidden) if isinstance(keys.hidden, tuple) else ("next", keys.hidden)
+        mem: TensorDictModuleBase = GRUModule(
+            input_size=mem_in.out_dim,
+            hidden_size=cfg.gru_hidden,
+            num_layers=cfg.gru_layers,
+            in_keys=[keys.memory_in, keys.hidden, keys.is_init],
+            out_keys=[keys.memory_out, hidden_next],
+        )
+        mem_dim = cfg.gru_hidden
+    elif memory == "ct":
+        mem = CausalTransformerMemory(
+            mem_in.out_dim,
+            cfg.ct,
+            in_key=keys.memory_in,
+            out_key=keys.memory_out,
+            context_key=keys.context,
+            valid_key=keys.context_valid,
+            is_init_key=keys.is_init,
+        )
+        mem_dim = cfg.ct.dim
+    else:
+        raise ValueError(f"unknown memory {memory!r}; valid: ['ct', 'gru']")
+    heads = make_heads_module(keys.memory_out, mem_dim, cfg, keys)
+    return TensorDictSequential(encoder, mem_in_module, mem, heads)

@@ -1,0 +1,187 @@
+"""Oracle (teacher) actor-critic: scandot and privileged encoders, actor and critic MLPs.
+
+Paper appendix "Network Architectures":
+
+* scandot encoder: MLP [128, 64, 32], ELU hidden, Tanh out: ``scandots (132,) -> z_tea (32,)``;
+* privileged encoder: MLP [64, 20] (ELU): ``privileged (P,) -> priv_latent (20,)``;
+* actor and critic: MLP [512, 256, 128], ELU hidden, Tanh out, over
+  ``concat(proprio, z_tea, priv_latent, expert_goals.flatten())``; a final linear maps the
+  128 Tanh features to A action means (actor, see :class:`GaussianHead`) or to the value.
+
+"Tanh out" is read as the activation of the MLP's last listed layer (128), which is the
+only reading that also works for the critic (whose value is unbounded). Action means are
+therefore unbounded by default and the env applies ``q* = q_default + 0.25 a`` and its
+clip; ``OracleConfig.loc_bound`` optionally bounds them with ``bound * tanh``.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from torch import nn
+from torchrl.modules import ProbabilisticActor, ValueOperator
+
+from legoh_rl.modules.configs import OracleConfig
+from legoh_rl.modules.distributions import GaussianHead, make_gaussian_actor
+from legoh_rl.modules.keys import OracleKeys
+from legoh_rl.modules.mlp import build_mlp
+
+__all__ = [
+    "OracleActorNet",
+    "OracleCriticNet",
+    "OracleNetworks",
+    "make_oracle_actor",
+    "make_oracle_actor_critic",
+    "make_oracle_critic",
+]
+
+
+def _check_dims(owner: str, named: dict[str, tuple[torch.Tensor, int]]) -> None:
+    for name, (x, d) in named.items():
+        if x.shape[-1] != d:
+            raise ValueError(f"{owner}: {name} has last dim {x.shape[-1]}, expected {d}")
+
+
+class OracleActorNet(nn.Module):
+    """``(proprio (*B, D), z_tea (*B, 32), priv_latent (*B, 20), expert_goals (*B, N, 2))
+    -> (loc (*B, A), scale (*B, A))``."""
+
+    def __init__(self, cfg: OracleConfig) -> None:
+        super().__init__()
+        self.dims = (cfg.proprio_dim, cfg.latent_dim, cfg.priv_latent_dim, 2 * cfg.num_goals)
+        self.body = build_mlp(sum(self.dims), cfg.actor_layers, cfg.activation,
+                              last_activation=cfg.body_out_activation)
+        self.head = GaussianHead(int(cfg.actor_layers[-1]), cfg.num_actions, cfg.init_std,
+                                 cfg.loc_bound)
+
+    def forward(self, proprio, z_tea, priv_latent, expert_goals):
+        """Return ``(loc, scale)``."""
+        goals = expert_goals.flatten(-2)
+        _check_dims("OracleActorNet", {
+            "proprio": (proprio, self.dims[0]), "z_tea": (z_tea, self.dims[1]),
+            "priv_latent": (priv_latent, self.dims[2]), "expert_goals (flattened)": (goals, self.dims[3]),
+        })
+        return self.head(self.body(torch.cat([proprio, z_tea, priv_latent, goals], dim=-1)))
+
+
+class OracleCriticNet(nn.Module):
+    """``(proprio, scandots (*B, 132), privileged (*B, P), expert_goals (*B, N, 2))
+    -> state_value (*B, 1)``.
+
+    Runs its scandot and privileged encoders itself (its own copies, or the actor's
+    when ``share_encoders``), then the [512, 256, 128] MLP and a linear value head.
+    """
+
+    def __init__(self, cfg: OracleConfig, scandot_encoder: nn.Module, priv_encoder: nn.Module):
+        super().__init__()
+        self.scandot_encoder = scandot_encoder
+        self.priv_encoder = priv_encoder
+        self.dims = (cfg.proprio_dim, cfg.latent_dim, cfg.priv_latent_dim, 2 * cfg.num_goals)
+        self.body = build_mlp(sum(self.dims), cfg.critic_layers, cfg.activation,
+                              last_activation=cfg.body_out_activation)
+        self.value = nn.Linear(int(cfg.critic_layers[-1]), 1)
+
+    def forward(self, proprio, scandots, privileged, expert_goals) -> torch.Tensor:
+        """Return the state value ``(*B, 1)``."""
+        z = self.scandot_encoder(scandots)
+        p = self.priv_encoder(privileged)
+        goals = expert_goals.flatten(-2)
+        _check_dims("OracleCriticNet", {
+            "proprio": (proprio, self.dims[0]), "expert_goals (flattened)": (goals, self.dims[3]),
+        })
+        return self.value(self.body(torch.cat([proprio, z, p, goals], dim=-1)))
+
+
+class OracleNetworks(nn.Module):
+    """All oracle parameters in one module (handy for checkpoints and freezing).
+
+    Attributes:
+        scandot_encoder: ``(*B, 132) -> (*B, 32)``. priv_encoder: ``(*B, P) -> (*B, 20)``.
+        actor: :class:`OracleActorNet`. critic: :class:`OracleCriticNet`.
+    """
+
+    def __init__(self, cfg: OracleConfig) -> None:
+        super().__init__()
+        cfg.validate()
+        self.cfg = cfg
+        self.scandot_encoder = build_mlp(cfg.scandots_dim, cfg.scandot_layers, cfg.activation,
+                                         last_activation=cfg.encoder_out_activation)
+        self.priv_encoder = build_mlp(cfg.privileged_dim, cfg.priv_layers, cfg.activation,
+                                      last_activation=cfg.priv_out_activation)
+        self.actor = OracleActorNet(cfg)
+        if cfg.share_encoders:
+            critic_scan, critic_priv = self.scandot_encoder, self.priv_encoder
+        else:
+            critic_scan = build_mlp(cfg.scandots_dim, cfg.scandot_layers, cfg.activation,
+                                    last_activation=cfg.encoder_out_activation)
+            critic_priv = build_mlp(cfg.privileged_dim, cfg.priv_layers, cfg.activation,
+                                    last_activation=cfg.priv_out_activation)
+        self.critic = OracleCriticNet(cfg, critic_scan, critic_priv)
+
+
+def make_oracle_actor(
+    networks: OracleNetworks,
+    keys: OracleKeys | None = None,
+    priv_latent_module: TensorDictModuleBase | None = None,
+) -> ProbabilisticActor:
+    """Oracle actor: ``scandots -> z_tea``, ``privileged -> priv_latent``, ``-> loc, scale -> action``.
+
+    Args:
+        networks: the parameters (shared with any other actor/critic built from them).
+        keys: TensorDict keys (defaults: :class:`OracleKeys`).
+        priv_latent_module: if given, replaces the privileged encoder: a TensorDictModule
+            whose first out key holds the latent estimate (e.g. the adaptation module's
+            ``priv_latent_hat`` from ``proprio_history``). The actor then needs no
+            ``privileged`` input, which is how the oracle runs without privileged state.
+
+    Returns:
+        A ``ProbabilisticActor`` (IndependentNormal, ``return_log_prob=True``) whose
+        outputs include ``z_tea``, the latent, ``loc``, ``scale``, ``action`` and
+        ``action_log_prob``.
+    """
+    keys = keys or OracleKeys()
+    steps: list[TensorDictModuleBase] = [
+        TensorDictModule(networks.scandot_encoder, in_keys=[keys.scandots], out_keys=[keys.z_tea])
+    ]
+    if priv_latent_module is None:
+        steps.append(TensorDictModule(networks.priv_encoder, in_keys=[keys.privileged],
+                                      out_keys=[keys.priv_latent]))
+        latent_key = keys.priv_latent
+    else:
+        steps.append(priv_latent_module)
+        latent_key = priv_latent_module.out_keys[0]
+    steps.append(TensorDictModule(
+        networks.actor,
+        in_keys=[keys.proprio, keys.z_tea, latent_key, keys.expert_goals],
+        out_keys=[keys.loc, keys.scale],
+    ))
+    return make_gaussian_actor(
+        TensorDictSequential(*steps), networks.cfg.num_actions,
+        loc_key=keys.loc, scale_key=keys.scale, action_key=keys.action,
+    )
+
+
+def make_oracle_critic(networks: OracleNetworks, keys: OracleKeys | None = None) -> ValueOperator:
+    """Oracle critic: ``(proprio, scandots, privileged, expert_goals) -> state_value (1,)``."""
+    keys = keys or OracleKeys()
+    return ValueOperator(
+        networks.critic,
+        in_keys=[keys.proprio, keys.scandots, keys.privileged, keys.expert_goals],
+        out_keys=[keys.state_value],
+    )
+
+
+def make_oracle_actor_critic(
+    cfg: OracleConfig,
+    keys: OracleKeys | None = None,
+    networks: OracleNetworks | None = None,
+) -> tuple[ProbabilisticActor, ValueOperator]:
+    """Build the oracle ``(actor, critic)`` pair from ``cfg`` (or from existing ``networks``).
+
+    The actor's outputs include ``z_tea`` and ``loc`` (the student's distillation targets).
+    To run the same oracle on the adaptation module's estimate instead of the privileged
+    encoder, build ``networks = OracleNetworks(cfg)`` once and call
+    ``make_oracle_actor(networks, keys, priv_latent_module=adaptation)``.
+    """
+    networks = networks if networks is not None else OracleNetworks(cfg)
+    return make_oracle_actor(networks, keys), make_oracle_critic(networks, keys)
