@@ -1,6 +1,6 @@
 """Trail categories: difficulty grows with level, determinism, level-0 reachability, hills, errors."""
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -14,7 +14,7 @@ from legoh_rl.envs.trails.config import LEVEL0_MAX_STEP
 VARIANTS = range(3)
 
 
-@lru_cache(maxsize=None)
+@cache
 def trail(category, level, variant=0, seed=0):
     return build_trail(category, level, seed=seed, variant=variant)
 
@@ -38,7 +38,9 @@ def reachable(t, max_step, start_xy, end_xy):
     _, label = connected_components(g, directed=False)
 
     def idx(p):
-        return int(round(p[0] / t.resolution)) * ny + int(round((p[1] + t.width / 2) / t.resolution))
+        return int(round(p[0] / t.resolution)) * ny + int(
+            round((p[1] + t.width / 2) / t.resolution)
+        )
 
     return label[idx(start_xy)] == label[idx(end_xy)]
 
@@ -59,7 +61,10 @@ def test_key_difficulty_parameters_grow_with_level(category):
 
 
 def test_forest_gets_denser_and_tighter():
-    counts = [np.mean([len(trail("forest", lv, v).obstacles) for v in VARIANTS]) for lv in range(NUM_LEVELS)]
+    counts = [
+        np.mean([len(trail("forest", lv, v).obstacles) for v in VARIANTS])
+        for lv in range(NUM_LEVELS)
+    ]
     assert counts[-1] >= 2.5 * counts[0]
     assert all(b >= a - 1 for a, b in zip(counts, counts[1:], strict=False))
     for lv in range(NUM_LEVELS):
@@ -93,7 +98,9 @@ def test_same_seed_same_trail_different_seed_different_trail(category):
     assert [o.pos.tolist() for o in a.obstacles] == [o.pos.tolist() for o in b.obstacles]
     assert a.params == b.params
     for other in (build_trail(category, 3, seed=12), build_trail(category, 3, seed=11, variant=1)):
-        assert not np.array_equal(a.heights, other.heights) or not np.array_equal(a.goals, other.goals)
+        assert not np.array_equal(a.heights, other.heights) or not np.array_equal(
+            a.goals, other.goals
+        )
 
 
 @pytest.mark.parametrize("category", CATEGORIES)
@@ -132,7 +139,9 @@ def test_hill_chains_categories_over_rising_and_falling_ground():
         assert np.ptp(base) > (0.5 if lv == 0 else 1.5)
         d = np.diff(base)
         assert (d > 0.01).any() and (d < -0.01).any()
-        assert t.params["hill_grade_deg"][0] == pytest.approx(PARAMS["hill_grade_deg"].band(lv)[0], abs=1.2)
+        assert t.params["hill_grade_deg"][0] == pytest.approx(
+            PARAMS["hill_grade_deg"].band(lv)[0], abs=1.2
+        )
         assert t.route_length > 33.0
     short = build_trail("hill", 1, seed=0, length=12.0)
     assert len(short.sections) >= 2

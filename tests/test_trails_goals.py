@@ -1,6 +1,6 @@
 """Expert goals: on traversable ground, clear of obstacles and pits, in route order."""
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ from legoh_rl.envs.trails.config import GOAL_OBSTACLE_CLEARANCE, GOAL_PIT_CLEARA
 from legoh_rl.envs.trails.goals import SIDE_MARGIN
 
 
-@lru_cache(maxsize=None)
+@cache
 def trail(category, level, variant=0):
     length = 24.0 if category == "hill" else None
     return build_trail(category, level, seed=3, variant=variant, length=length)
@@ -36,7 +36,11 @@ def test_goals_on_traversable_ground_with_clearance(category, level):
             assert 0.0 <= p[0] <= t.length and abs(p[1]) <= t.width / 2 - SIDE_MARGIN + 1e-9
             # no obstacle footprint within the clearance (exact geometry)
             for ob in t.obstacles:
-                assert float(ob.footprint_distance(p[:2])) >= GOAL_OBSTACLE_CLEARANCE - 1e-9, (category, level, p)
+                assert float(ob.footprint_distance(p[:2])) >= GOAL_OBSTACLE_CLEARANCE - 1e-9, (
+                    category,
+                    level,
+                    p,
+                )
             # no pit sample within the pit clearance
             if len(pit_xy):
                 assert np.hypot(*(pit_xy - p[:2]).T).min() >= GOAL_PIT_CLEARANCE - 1e-9
@@ -95,12 +99,16 @@ def test_forest_goals_detour_around_obstacles():
     for level in (2, 3, 4):
         t = trail("forest", level)
         pts = np.vstack([t.start[None, :2], t.goals[:, :2]])
-        dense = np.concatenate([np.linspace(a, b, 20) for a, b in zip(pts[:-1], pts[1:], strict=True)])
+        dense = np.concatenate(
+            [np.linspace(a, b, 20) for a, b in zip(pts[:-1], pts[1:], strict=True)]
+        )
         d = np.min([ob.footprint_distance(dense) for ob in t.obstacles], axis=0)
         assert d.min() > 0.2  # the straight legs between goals keep clear of every obstacle
         straight = np.linspace(t.start[:2], t.end[:2], 200)
         s_min = np.min([ob.footprint_distance(straight) for ob in t.obstacles], axis=0).min()
-        if s_min < 0.3:  # the straight line P_A -> P_B grazes or hits an obstacle: the route detours
+        if (
+            s_min < 0.3
+        ):  # the straight line P_A -> P_B grazes or hits an obstacle: the route detours
             assert d.min() > s_min and np.ptp(t.goals[:, 1]) > 0.05
 
 
@@ -109,3 +117,28 @@ def test_forest_routes_differ_between_variants():
     assert lat[0] != lat[1]
     for cat in CATEGORIES:
         assert trail(cat, 2).goals.shape[0] <= 24
+
+
+def test_planner_detours_and_reports_blocked_routes():
+    from legoh_rl.envs.trails.goals import GoalChecker, plan_path
+    from legoh_rl.envs.trails.obstacles import make_box
+
+    xs = np.arange(80) * 0.1
+    ys = np.arange(50) * 0.1 - 2.5
+    pit = np.zeros((80, 50), dtype=bool)
+    rng = np.random.default_rng(0)
+    # a wall with one 1.0 m passage at y = +1.0: the path must go through it
+    walls = [
+        make_box((4.0, -1.0), (0.3, 1.5), 1.0, 0.0, "wall", 1.0),
+        make_box((4.0, 2.0), (0.3, 0.5), 1.0, 0.0, "wall", 1.0),
+    ]
+    chk = GoalChecker(pit, walls, xs, ys, 0.1)
+    path = plan_path(chk, (0.5, 0.0), (7.5, 0.0), (0.0, 8.0), 0.35, rng)
+    assert path is not None
+    at_wall = path[np.abs(path[:, 0] - 4.0) < 0.05]
+    assert np.all(np.abs(at_wall[:, 1] - 1.0) <= 0.15 + 1e-9)
+    assert min(float(o.footprint_distance(path).min()) for o in walls) >= 0.35 - 1e-9
+    # close the passage: no route
+    walls.append(make_box((4.0, 1.0), (0.3, 0.6), 1.0, 0.0, "wall", 1.0))
+    chk = GoalChecker(pit, walls, xs, ys, 0.1)
+    assert plan_path(chk, (0.5, 0.0), (7.5, 0.0), (0.0, 8.0), 0.35, rng) is None

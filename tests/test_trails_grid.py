@@ -49,7 +49,9 @@ def test_tiles_equal_standalone_trails_in_world_coordinates(grid):
     n = grid.num_goals[r, c]
     assert n == len(t.goals)
     np.testing.assert_allclose(grid.goals[r, c, :n], t.goals + shift)
-    np.testing.assert_allclose(grid.goals[r, c, n:], np.broadcast_to(grid.end[r, c], (grid.goals.shape[2] - n, 3)))
+    np.testing.assert_allclose(
+        grid.goals[r, c, n:], np.broadcast_to(grid.end[r, c], (grid.goals.shape[2] - n, 3))
+    )
     assert grid.route_length[r, c] == pytest.approx(t.route_length)
     # heights of the grid at the tile's samples are the trail's heights
     xs = shift[0] + np.arange(t.shape[0]) * t.resolution
@@ -63,7 +65,9 @@ def test_tiles_equal_standalone_trails_in_world_coordinates(grid):
 
 
 def test_start_heights_and_spawn(grid):
-    z = grid.height_at(grid.start[..., :2].reshape(-1, 2), surface=False).reshape(grid.start.shape[:2])
+    z = grid.height_at(grid.start[..., :2].reshape(-1, 2), surface=False).reshape(
+        grid.start.shape[:2]
+    )
     np.testing.assert_allclose(grid.start[..., 2], z, atol=1e-9)
     np.testing.assert_allclose(grid.start[..., 2], 0.0, atol=1e-9)  # start pads are at z = 0
     sp = grid.spawn_positions(np.array([0, 4]), np.array([3, 17]), standing_height=1.0)
@@ -135,7 +139,9 @@ def test_heightfield_orientation_matches_queries(grid):
     gid = np.zeros(1, dtype=np.int32)
     hit = []
     for x, y in xy:
-        d = mujoco.mj_ray(model, data, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]), groups, 1, -1, gid)
+        d = mujoco.mj_ray(
+            model, data, np.array([x, y, 10.0]), np.array([0.0, 0.0, -1.0]), groups, 1, -1, gid
+        )
         hit.append(10.0 - d)
     span = np.ptp(grid.map.bare)
     np.testing.assert_allclose(hit, grid.map.bare[ij[:, 0], ij[:, 1]], atol=1e-5 * span + 1e-6)

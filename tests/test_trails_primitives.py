@@ -73,7 +73,9 @@ def test_physical_ranges_fit_the_robots():
 @pytest.mark.parametrize("name", [n for n in PRIMITIVES if PRIMITIVES[n].params])
 def test_difficulty_parameters_monotone_in_level(name):
     for pname in PRIMITIVES[name].params:
-        vals = [[make_primitive(name, lv, s).params[pname] for s in SEEDS] for lv in range(NUM_LEVELS)]
+        vals = [
+            [make_primitive(name, lv, s).params[pname] for s in SEEDS] for lv in range(NUM_LEVELS)
+        ]
         for lv in range(NUM_LEVELS - 1):
             if PARAMS[pname].increasing:
                 assert max(vals[lv]) < min(vals[lv + 1]), (name, pname, lv)

@@ -48,7 +48,9 @@ def test_height_at_hand_values():
     expect = [0.025, 0.2, 0.3, 0.0, 0.1]
     np.testing.assert_allclose(m.height_at(pts), expect, atol=1e-12)
     near = np.array([[1.3, -0.7], [1.8, -0.5], [2.5, 0.0], [-10.0, 10.0], [1.6, -0.4]])
-    np.testing.assert_allclose(m.height_at(near, interpolation="nearest"), [0.1, 0.3, 0.3, 0.0, 0.1])
+    np.testing.assert_allclose(
+        m.height_at(near, interpolation="nearest"), [0.1, 0.3, 0.3, 0.0, 0.1]
+    )
     assert m.extent == (1.0, 2.5, -1.0, 0.0)
     np.testing.assert_array_equal(m.contains(pts), [True, True, True, False, True])
 

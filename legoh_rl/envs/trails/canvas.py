@@ -70,9 +70,13 @@ class TileCanvas:
     def place(self, patch: Patch) -> list[Spot]:
         """Lay ``patch`` at the cursor; return its goal spots in the tile frame."""
         if patch.heights.shape[1] != self.ny:
-            raise ValueError(f"patch {patch.name!r} has {patch.heights.shape[1]} samples across, tile has {self.ny}")
+            raise ValueError(
+                f"patch {patch.name!r} has {patch.heights.shape[1]} samples across, tile has {self.ny}"
+            )
         if self.cursor + patch.nx > self.nx:
-            raise ValueError(f"patch {patch.name!r} ({patch.nx} samples) does not fit after sample {self.cursor}")
+            raise ValueError(
+                f"patch {patch.name!r} ({patch.nx} samples) does not fit after sample {self.cursor}"
+            )
         c, n = self.cursor, patch.nx
         dx = self.x_of(c)
         self.heights[c : c + n] = patch.heights + self.elev
@@ -85,12 +89,17 @@ class TileCanvas:
         self.elev += patch.exit_height
         return [s.shifted(dx) for s in patch.spots]
 
-    def add_noise(self, amplitude: float, i0: int, i1: int, rng: np.random.Generator, ramp: float = 0.3) -> None:
+    def add_noise(
+        self, amplitude: float, i0: int, i1: int, rng: np.random.Generator, ramp: float = 0.3
+    ) -> None:
         """Add uneven ground of +-amplitude over samples [i0, i1), tapered to 0 at both ends."""
         if amplitude <= 0 or i1 - i0 < 3:
             return
         n = i1 - i0
-        noise = rough_field((n, self.ny), amplitude, self.resolution, rng) * taper(n, self.resolution, ramp)[:, None]
+        noise = (
+            rough_field((n, self.ny), amplitude, self.resolution, rng)
+            * taper(n, self.resolution, ramp)[:, None]
+        )
         self.heights[i0:i1] += noise
 
     def add_profile(self, profile: np.ndarray) -> None:

@@ -67,7 +67,10 @@ def _lay(
     """
     res = cv.resolution
     seeds = [int(x) for x in rng.integers(0, 2**62, size=len(makers))]
-    lengths = [sum(p.nx for p in m(np.random.default_rng(sd), 0.0, 0)) for m, sd in zip(makers, seeds, strict=True)]
+    lengths = [
+        sum(p.nx for p in m(np.random.default_rng(sd), 0.0, 0))
+        for m, sd in zip(makers, seeds, strict=True)
+    ]
     gaps = [int(round(rng.uniform(*spacer) / res)) for _ in makers]
     avail = end - cv.cursor
     chosen: set[int] = set()
@@ -91,7 +94,9 @@ def _lay(
     return spots
 
 
-def _mound(level: int, rng: np.random.Generator, w: float, res: float, route_y: float = 0.0) -> list[Patch]:
+def _mound(
+    level: int, rng: np.random.Generator, w: float, res: float, route_y: float = 0.0
+) -> list[Patch]:
     theta = PARAMS["slope_deg"].sample(level, rng)
     ramp = rng.uniform(1.0, 1.5)
     return [
@@ -122,7 +127,9 @@ def _gap_maker(level: int, w: float, res: float, first_sign: float, widen: float
     return make
 
 
-def body_randommix(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, entry, exit) -> Plan:
+def body_randommix(
+    cv: TileCanvas, end: int, level: int, rng: np.random.Generator, entry, exit
+) -> Plan:
     """Unobstructed mixed terrain (see module docstring)."""
     w, res = cv.width, cv.resolution
     i_start = cv.cursor
@@ -140,7 +147,9 @@ def body_randommix(cv: TileCanvas, end: int, level: int, rng: np.random.Generato
     names = ["mound"] + [str(n) for n in rng.permutation(list(pool))]
     order = rng.permutation(len(names))
     names = [names[i] for i in order]
-    makers = [(lambda g, y, k: _mound(level, g, w, res)) if n == "mound" else pool[n] for n in names]
+    makers = [
+        (lambda g, y, k: _mound(level, g, w, res)) if n == "mound" else pool[n] for n in names
+    ]
     _lay(cv, makers, [n == "mound" for n in names], end, rng, (0.3, 0.6))
     cv.add_noise(amp, i_start, end, rng)
     return [EvenSegment(tuple(entry), tuple(exit), 1.5)]
@@ -179,11 +188,15 @@ def body_ditch(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, e
     return list(spots)
 
 
-def body_hurdle(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, entry, exit) -> Plan:
+def body_hurdle(
+    cv: TileCanvas, end: int, level: int, rng: np.random.Generator, entry, exit
+) -> Plan:
     """Long cuboid hurdles across the trail on near-flat ground (now and then a platform)."""
     w, res = cv.width, cv.resolution
     i_start = cv.cursor
-    kinds = ["hurdle", "hurdle"] + ["platform" if rng.random() < 0.2 else "hurdle" for _ in range(6)]
+    kinds = ["hurdle", "hurdle"] + [
+        "platform" if rng.random() < 0.2 else "hurdle" for _ in range(6)
+    ]
     makers: list[Maker] = [
         (lambda g, y, k: [po.hurdle(level, g, w, res, route_y=y)])
         if kind == "hurdle"
@@ -191,7 +204,9 @@ def body_hurdle(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, 
         for kind in kinds
     ]
     ys = rng.uniform(-0.4, 0.4, size=len(kinds))
-    spots = _lay(cv, makers, [i < 2 for i in range(len(kinds))], end, rng, (0.2, 0.6), lambda k: float(ys[k]))
+    spots = _lay(
+        cv, makers, [i < 2 for i in range(len(kinds))], end, rng, (0.2, 0.6), lambda k: float(ys[k])
+    )
     cv.add_noise(0.01, i_start, end, rng)
     return list(spots)
 
@@ -201,7 +216,9 @@ def body_gap(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, ent
     w, res = cv.width, cv.resolution
     i_start = cv.cursor
     stones = "stepping_stones" if rng.random() < 0.5 else "staggered_stones"
-    kinds = ["gap", stones] + [str(x) for x in rng.choice(["gap", "stepping_stones", "staggered_stones"], size=3)]
+    kinds = ["gap", stones] + [
+        str(x) for x in rng.choice(["gap", "stepping_stones", "staggered_stones"], size=3)
+    ]
     kinds = [kinds[i] for i in rng.permutation(len(kinds))]
     gap_make = _gap_maker(level, w, res, 1.0 if rng.random() < 0.5 else -1.0, 0.0)
     makers: list[Maker] = []
@@ -242,11 +259,15 @@ def _forest_obstacle(rng: np.random.Generator, x: float, y: float, kind: str, d:
     if kind == "tree":
         return make_trunk((x, y), d["r"], d["h"], "tree", f)
     if kind == "boulder":
-        return make_rock((x, y), (d["rx"], d["ry"]), d["h"], rng.uniform(0, 2 * math.pi), rng, "boulder", f)
+        return make_rock(
+            (x, y), (d["rx"], d["ry"]), d["h"], rng.uniform(0, 2 * math.pi), rng, "boulder", f
+        )
     return make_box((x, y), (d["hx"], d["hy"]), d["h"], rng.uniform(0, math.pi), "block", f)
 
 
-def body_forest(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, entry, exit) -> Plan:
+def body_forest(
+    cv: TileCanvas, end: int, level: int, rng: np.random.Generator, entry, exit
+) -> Plan:
     """Dense obstacles of varied size with guaranteed passages; goals on a planned detour."""
     w, res = cv.width, cv.resolution
     i_start = cv.cursor
@@ -280,7 +301,11 @@ def body_forest(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, 
         if any(math.hypot(x - a[0], y - a[1]) < rb + 0.8 for a in anchors):
             continue
         # quick test on bounding discs; exact footprint distance only where the discs are close
-        close = [k for k, (px, py, pr) in enumerate(discs) if math.hypot(x - px, y - py) - pr - rb < passage]
+        close = [
+            k
+            for k, (px, py, pr) in enumerate(discs)
+            if math.hypot(x - px, y - py) - pr - rb < passage
+        ]
         if any(placed[k].point_distance(x, y) - rb < passage for k in close):
             continue
         ob = _forest_obstacle(rng, x, y, kind, dims)
@@ -291,7 +316,9 @@ def body_forest(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, 
     path = None
     for _ in range(30):
         checker = GoalChecker(cv.pit, cv.obstacles + placed, cv.xs, cv.ys, res)
-        path = plan_path(checker, tuple(entry), tuple(exit), (x0 - 1.0, x1 + 1.0), FOREST_PLAN_CLEARANCE, rng)
+        path = plan_path(
+            checker, tuple(entry), tuple(exit), (x0 - 1.0, x1 + 1.0), FOREST_PLAN_CLEARANCE, rng
+        )
         if path is not None:
             break
         movable = [o for o in placed if not any(o is g for g in gate)]
@@ -301,7 +328,8 @@ def body_forest(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, 
         seg = b - a
         t = [np.clip(np.dot(o.pos[:2] - a, seg) / np.dot(seg, seg), 0, 1) for o in movable]
         d = [np.linalg.norm(o.pos[:2] - (a + ti * seg)) for o, ti in zip(movable, t, strict=True)]
-        placed.remove(movable[int(np.argmin(d))])
+        victim = movable[int(np.argmin(d))]
+        placed = [o for o in placed if o is not victim]
     cv.obstacles.extend(placed)
     cv.add_noise(0.015, i_start, end, rng)
     if path is None:
@@ -346,7 +374,7 @@ def body_hill(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, en
     kern = max(1, int(round(1.5 / res)))
     padded = np.r_[np.full(kern, prof[0]), prof, np.full(kern, prof[-1])]
     prof = np.convolve(padded, np.ones(kern) / kern, mode="same")[kern:-kern]
-    prof[: i_start] = 0.0
+    prof[:i_start] = 0.0
     ramp = np.clip((cv.xs - cv.x_of(i_start)) / 1.0, 0.0, 1.0)
     prof *= ramp
     prof[end:] = prof[end - 1]

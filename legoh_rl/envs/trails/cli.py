@@ -24,7 +24,11 @@ __all__ = ["main", "parameter_table"]
 
 def parameter_table() -> str:
     """Markdown table of every difficulty parameter's range per level."""
-    head = "| parameter | unit | " + " | ".join(f"level {lv}" for lv in range(NUM_LEVELS)) + " | meaning |"
+    head = (
+        "| parameter | unit | "
+        + " | ".join(f"level {lv}" for lv in range(NUM_LEVELS))
+        + " | meaning |"
+    )
     rule = "|---|---|" + "---|" * NUM_LEVELS + "---|"
     rows = [head, rule]
     for p in PARAMS.values():
@@ -41,20 +45,28 @@ def _trail_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--level", type=int, required=True, help=f"0..{NUM_LEVELS - 1}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--variant", type=int, default=0)
-    p.add_argument("--length", type=float, default=None, help="tile length, m (default 12, hill 36)")
+    p.add_argument(
+        "--length", type=float, default=None, help="tile length, m (default 12, hill 36)"
+    )
     p.add_argument("--width", type=float, default=5.0)
     p.add_argument("--resolution", type=float, default=0.1)
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m legoh_rl.envs.trails", description="LEGO-H hiking trail generator")
+    ap = argparse.ArgumentParser(
+        prog="python -m legoh_rl.envs.trails", description="LEGO-H hiking trail generator"
+    )
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("preview", help="top-down PNG of one trail")
     _trail_args(p)
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--dpi", type=int, default=80)
-    e = sub.add_parser("export", help="mesh (.glb/.obj/.ply/.stl) of one trail, or of a whole grid with --grid")
-    e.add_argument("--grid", action="store_true", help="export the whole grid (ignores --category/--level)")
+    e = sub.add_parser(
+        "export", help="mesh (.glb/.obj/.ply/.stl) of one trail, or of a whole grid with --grid"
+    )
+    e.add_argument(
+        "--grid", action="store_true", help="export the whole grid (ignores --category/--level)"
+    )
     e.add_argument("--category", default=None, help=f"one of: {', '.join(ALL_CATEGORIES)}")
     e.add_argument("--level", type=int, default=None)
     e.add_argument("--seed", type=int, default=0)
@@ -69,7 +81,10 @@ def _parser() -> argparse.ArgumentParser:
     q.add_argument("--level", type=int, required=True)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("-o", "--output", required=True)
-    g = sub.add_parser("gallery", help="the docs images: every primitive at level 2, every category at levels 0 and 4")
+    g = sub.add_parser(
+        "gallery",
+        help="the docs images: every primitive at level 2, every category at levels 0 and 4",
+    )
     g.add_argument("--out", default="docs/img/trails")
     g.add_argument("--seed", type=int, default=0)
     sub.add_parser("table", help="print the per-level parameter table (markdown)")
@@ -87,18 +102,34 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         if args.cmd == "preview":
-            t = build_trail(args.category, args.level, args.seed, args.variant, args.length, args.width, args.resolution)
+            t = build_trail(
+                args.category,
+                args.level,
+                args.seed,
+                args.variant,
+                args.length,
+                args.width,
+                args.resolution,
+            )
             print(save_trail_preview(t, args.output, dpi=args.dpi))
         elif args.cmd == "export":
             if args.grid:
                 grid = build_trail_grid(
-                    TrailGridConfig(variants=args.variants, seed=args.seed, resolution=args.resolution)
+                    TrailGridConfig(
+                        variants=args.variants, seed=args.seed, resolution=args.resolution
+                    )
                 )
             else:
                 if args.category is None or args.level is None:
                     ap.error("export needs --category and --level (or --grid)")
                 grid = single_trail_grid(
-                    args.category, args.level, args.seed, args.variant, args.length, args.width, args.resolution
+                    args.category,
+                    args.level,
+                    args.seed,
+                    args.variant,
+                    args.length,
+                    args.width,
+                    args.resolution,
                 )
             print(grid.export(args.output))
         elif args.cmd == "primitive":
@@ -109,7 +140,11 @@ def main(argv: list[str] | None = None) -> int:
                 print(save_primitive_preview(name, 2, args.seed, out / f"primitive_{name}.png"))
             for cat in CATEGORIES:
                 for lv in (0, NUM_LEVELS - 1):
-                    print(save_trail_preview(build_trail(cat, lv, args.seed), out / f"{cat}_level{lv}.png"))
+                    print(
+                        save_trail_preview(
+                            build_trail(cat, lv, args.seed), out / f"{cat}_level{lv}.png"
+                        )
+                    )
             print(save_trail_preview(build_trail("hill", 2, args.seed), out / "hill_level2.png"))
         elif args.cmd == "table":
             print(parameter_table())

@@ -75,7 +75,9 @@ def check_level(level: int, num_levels: int = NUM_LEVELS) -> int:
     try:
         lv = operator.index(level)
     except TypeError:
-        raise ValueError(f"difficulty level must be an integer, got {level!r}; valid levels: {valid}") from None
+        raise ValueError(
+            f"difficulty level must be an integer, got {level!r}; valid levels: {valid}"
+        ) from None
     if isinstance(level, bool) or not 0 <= lv < num_levels:
         raise ValueError(f"difficulty level {level!r} is out of range; valid levels: {valid}")
     return lv
@@ -124,9 +126,13 @@ class TrailGridConfig:
     _all: tuple[str, ...] = field(init=False, repr=False, compare=False, default=())
 
     def __post_init__(self) -> None:
-        cats = tuple(self.categories) if not isinstance(self.categories, str) else (self.categories,)
+        cats = (
+            tuple(self.categories) if not isinstance(self.categories, str) else (self.categories,)
+        )
         if not cats:
-            raise ValueError(f"categories must not be empty; valid categories: {', '.join(ALL_CATEGORIES)}")
+            raise ValueError(
+                f"categories must not be empty; valid categories: {', '.join(ALL_CATEGORIES)}"
+            )
         for c in cats:
             check_category(c)
         if len(set(cats)) != len(cats):
@@ -135,7 +141,9 @@ class TrailGridConfig:
         all_cats = cats + (("hill",) if self.include_hills and "hill" not in cats else ())
         object.__setattr__(self, "_all", all_cats)
         if not isinstance(self.num_levels, int) or not 1 <= self.num_levels <= NUM_LEVELS:
-            raise ValueError(f"num_levels must be an integer in 1..{NUM_LEVELS}, got {self.num_levels!r}")
+            raise ValueError(
+                f"num_levels must be an integer in 1..{NUM_LEVELS}, got {self.num_levels!r}"
+            )
         if not isinstance(self.variants, int) or self.variants < 1:
             raise ValueError(f"variants must be a positive integer, got {self.variants!r}")
         if not (math.isfinite(self.resolution) and 0.01 <= self.resolution <= 0.5):
@@ -146,7 +154,11 @@ class TrailGridConfig:
                 raise ValueError(f"{name} must be at least {lo} m, got {v!r}")
             if not _is_multiple(v, self.resolution):
                 raise ValueError(f"{name}={v} must be a multiple of resolution={self.resolution}")
-        if not (math.isfinite(self.border) and self.border >= 0 and _is_multiple(self.border, self.resolution)):
+        if not (
+            math.isfinite(self.border)
+            and self.border >= 0
+            and _is_multiple(self.border, self.resolution)
+        ):
             raise ValueError(
                 f"border must be >= 0 and a multiple of resolution={self.resolution}, got {self.border!r}"
             )

@@ -145,7 +145,9 @@ class TrailGrid:
     def column(self, category: str, variant: int = 0) -> int:
         """Column index of ``category`` / ``variant`` (ValueError listing valid values)."""
         if category not in self.categories:
-            raise ValueError(f"category {category!r} is not in this grid; grid categories: {', '.join(self.categories)}")
+            raise ValueError(
+                f"category {category!r} is not in this grid; grid categories: {', '.join(self.categories)}"
+            )
         v = self.config.variants
         if not 0 <= int(variant) < v:
             raise ValueError(f"variant {variant!r} out of range; valid variants: 0..{v - 1}")
@@ -165,7 +167,9 @@ class TrailGrid:
         return np.where(off, -1, r), np.where(off, -1, c)
 
     # ---------------------------------------------------------------- queries
-    def height_at(self, xy: np.ndarray, surface: bool = True, interpolation: str = "bilinear") -> np.ndarray:
+    def height_at(
+        self, xy: np.ndarray, surface: bool = True, interpolation: str = "bilinear"
+    ) -> np.ndarray:
         """Terrain height (..., 2) -> (...,); ``surface`` includes obstacle tops (see TerrainMap)."""
         return self.map.height_at(xy, surface=surface, interpolation=interpolation)
 
@@ -177,7 +181,9 @@ class TrailGrid:
         """(..., 2) -> (...,) bool: the nearest sample is a pit sample."""
         return self.map.pit_at(xy)
 
-    def spawn_positions(self, rows: np.ndarray, columns: np.ndarray, standing_height: float) -> np.ndarray:
+    def spawn_positions(
+        self, rows: np.ndarray, columns: np.ndarray, standing_height: float
+    ) -> np.ndarray:
         """(N,) rows, (N,) columns -> (N, 3) spawn points: P_A lifted to the surface height there
         plus ``standing_height``."""
         rows = np.asarray(rows, dtype=np.int64)
@@ -229,8 +235,14 @@ class TrailGrid:
         tx, ty = self.trails[row][column].shape
         x0, _, y0, _ = self.tile_bounds[row, column]
         i0, j0 = int(round(x0 / self.resolution)), int(round(y0 / self.resolution))
-        obs = [o for o, (r, c) in zip(self.obstacles, self.obstacle_tile, strict=True) if r == row and c == column]
-        return terrain_scene(self.map.bare[i0 : i0 + tx, j0 : j0 + ty], (x0, y0), self.resolution, obs)
+        obs = [
+            o
+            for o, (r, c) in zip(self.obstacles, self.obstacle_tile, strict=True)
+            if r == row and c == column
+        ]
+        return terrain_scene(
+            self.map.bare[i0 : i0 + tx, j0 : j0 + ty], (x0, y0), self.resolution, obs
+        )
 
     def export(self, path: str | Path, row: int | None = None, column: int | None = None) -> Path:
         """Write the grid (or one tile) as a mesh; format from the suffix (.glb, .obj, .ply, .stl)."""
@@ -249,7 +261,11 @@ def build_trail_grid(config: TrailGridConfig | None = None) -> TrailGrid:
         row = []
         for cat in cfg.all_categories:
             for v in range(cfg.variants):
-                row.append(build_trail(cat, level, cfg.seed, v, cfg.tile_length, cfg.tile_width, cfg.resolution))
+                row.append(
+                    build_trail(
+                        cat, level, cfg.seed, v, cfg.tile_length, cfg.tile_width, cfg.resolution
+                    )
+                )
         rows.append(row)
     return TrailGrid(rows, cfg)
 

@@ -21,7 +21,9 @@ _COLOURS = {
 }
 
 
-def heightfield_mesh(heights: np.ndarray, origin: tuple[float, float], resolution: float) -> trimesh.Trimesh:
+def heightfield_mesh(
+    heights: np.ndarray, origin: tuple[float, float], resolution: float
+) -> trimesh.Trimesh:
     """Triangulated surface of a height grid.
 
     Args:
@@ -36,7 +38,9 @@ def heightfield_mesh(heights: np.ndarray, origin: tuple[float, float], resolutio
     h = np.asarray(heights, dtype=np.float64)
     nx, ny = h.shape
     ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
-    verts = np.stack([origin[0] + ii * resolution, origin[1] + jj * resolution, h], axis=-1).reshape(-1, 3)
+    verts = np.stack(
+        [origin[0] + ii * resolution, origin[1] + jj * resolution, h], axis=-1
+    ).reshape(-1, 3)
     idx = np.arange(nx * ny).reshape(nx, ny)
     a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
     c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
@@ -56,9 +60,13 @@ def obstacle_mesh(ob: Obstacle) -> trimesh.Trimesh:
     if ob.kind == "box":
         m = trimesh.creation.box(extents=2.0 * ob.size, transform=tf)
     elif ob.kind == "cylinder":
-        m = trimesh.creation.cylinder(radius=float(ob.size[0]), height=2.0 * float(ob.size[1]), sections=24, transform=tf)
+        m = trimesh.creation.cylinder(
+            radius=float(ob.size[0]), height=2.0 * float(ob.size[1]), sections=24, transform=tf
+        )
     else:
-        m = trimesh.Trimesh(vertices=np.asarray(ob.mesh_vertices) + ob.pos, faces=ob.mesh_faces, process=False)
+        m = trimesh.Trimesh(
+            vertices=np.asarray(ob.mesh_vertices) + ob.pos, faces=ob.mesh_faces, process=False
+        )
     m.visual.face_colors = _COLOURS.get(ob.role, (140, 115, 90, 255))
     return m
 
@@ -68,7 +76,9 @@ def terrain_scene(
 ) -> trimesh.Scene:
     """Scene with geometry "terrain" (the height grid) and "obstacle_<k>" per obstacle."""
     scene = trimesh.Scene()
-    scene.add_geometry(heightfield_mesh(heights, origin, resolution), geom_name="terrain", node_name="terrain")
+    scene.add_geometry(
+        heightfield_mesh(heights, origin, resolution), geom_name="terrain", node_name="terrain"
+    )
     for k, ob in enumerate(obstacles):
         name = f"obstacle_{k:04d}"
         scene.add_geometry(obstacle_mesh(ob), geom_name=name, node_name=name)
@@ -80,7 +90,9 @@ def export_scene(scene: trimesh.Scene, path: str | Path) -> Path:
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in MESH_FORMATS:
-        raise ValueError(f"unsupported mesh format {p.suffix!r} for {str(p)!r}; valid: {', '.join(MESH_FORMATS)}")
+        raise ValueError(
+            f"unsupported mesh format {p.suffix!r} for {str(p)!r}; valid: {', '.join(MESH_FORMATS)}"
+        )
     p.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".glb":
         scene.export(str(p), file_type="glb")

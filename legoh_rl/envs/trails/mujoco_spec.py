@@ -72,7 +72,9 @@ def add_terrain_to_spec(
         Names of the added geoms (the heightfield first).
     """
     if spec.geom(HFIELD_GEOM) is not None or spec.hfield(HFIELD_ASSET) is not None:
-        raise ValueError(f"the spec already holds a terrain ('{HFIELD_GEOM}'); add_to_spec may be called once per spec")
+        raise ValueError(
+            f"the spec already holds a terrain ('{HFIELD_GEOM}'); add_to_spec may be called once per spec"
+        )
     bare = np.asarray(bare, dtype=np.float64)
     nx, ny = bare.shape
     zmin, zmax = float(bare.min()), float(bare.max())

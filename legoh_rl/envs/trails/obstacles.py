@@ -95,7 +95,7 @@ def polygon_distance(poly: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.where(inside, -dist, dist)
 
 
-@dataclass
+@dataclass(eq=False)  # identity equality: fields hold numpy arrays
 class Obstacle:
     """One static convex obstacle geom.
 
@@ -123,7 +123,9 @@ class Obstacle:
 
     def __post_init__(self) -> None:
         if self.kind not in OBSTACLE_KINDS:
-            raise ValueError(f"unknown obstacle kind {self.kind!r}; valid kinds: {', '.join(OBSTACLE_KINDS)}")
+            raise ValueError(
+                f"unknown obstacle kind {self.kind!r}; valid kinds: {', '.join(OBSTACLE_KINDS)}"
+            )
         self.pos = np.asarray(self.pos, dtype=np.float64).reshape(3)
         self.quat = np.asarray(self.quat, dtype=np.float64).reshape(4)
         self.size = np.asarray(self.size, dtype=np.float64).reshape(3)
@@ -144,7 +146,9 @@ class Obstacle:
         """(V, 3) vertices of the convex shape in the geom frame (cylinders: circumscribed prism)."""
         if self.kind == "box":
             sx, sy, sz = self.size
-            c = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=np.float64)
+            c = np.array(
+                [[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)], dtype=np.float64
+            )
             return c * np.array([sx, sy, sz])
         if self.kind == "cylinder":
             r, h = self.size[0], self.size[1]
@@ -227,7 +231,11 @@ class Obstacle:
         down = n[:, 2] < -1e-9
         side = ~(up | down)
         z_top = np.min(-a[..., up] / n[up, 2], axis=-1)
-        z_bot = np.max(-a[..., down] / n[down, 2], axis=-1) if down.any() else np.full(z_top.shape, -np.inf)
+        z_bot = (
+            np.max(-a[..., down] / n[down, 2], axis=-1)
+            if down.any()
+            else np.full(z_top.shape, -np.inf)
+        )
         ok = z_top >= z_bot - 1e-9
         if side.any():
             ok &= np.all(a[..., side] <= 1e-9, axis=-1)

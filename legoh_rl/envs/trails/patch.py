@@ -85,7 +85,11 @@ def axes(nx: int, width: float, resolution: float) -> tuple[np.ndarray, np.ndarr
 
 
 def rough_field(
-    shape: tuple[int, int], amplitude: float, resolution: float, rng: np.random.Generator, cell: float = 0.4
+    shape: tuple[int, int],
+    amplitude: float,
+    resolution: float,
+    rng: np.random.Generator,
+    cell: float = 0.4,
 ) -> np.ndarray:
     """Smooth random heights in [-amplitude, amplitude], shape ``shape``.
 

@@ -47,26 +47,59 @@ def draw_top_down(
     """Draw a height grid (nx, ny) and its annotations on ``ax``; returns the image artist."""
     nx, ny = bare.shape
     x0, y0 = origin
-    ext = [x0 - resolution / 2, x0 + (nx - 0.5) * resolution, y0 - resolution / 2, y0 + (ny - 0.5) * resolution]
+    ext = [
+        x0 - resolution / 2,
+        x0 + (nx - 0.5) * resolution,
+        y0 - resolution / 2,
+        y0 + (ny - 0.5) * resolution,
+    ]
     ground = bare[~pit] if (~pit).any() else bare.ravel()
     vmin = float(ground.min()) - 0.05
     vmax = max(float(ground.max()), vmin + 0.3) + 0.35
     img = np.ma.masked_array(np.clip(surface, vmin, vmax).T, mask=pit.T)
-    cmap = plt.get_cmap("terrain").copy()
-    cmap.set_bad("#1a1a1a")
-    im = ax.imshow(img, origin="lower", extent=ext, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
+    cmap = plt.get_cmap("terrain").with_extremes(bad="#1a1a1a")
+    im = ax.imshow(
+        img, origin="lower", extent=ext, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest"
+    )
     for ob in obstacles:
-        ax.add_patch(Polygon(ob.footprint, closed=True, facecolor=_FACE.get(ob.role, "#665544"), edgecolor="k", lw=0.4, alpha=0.9))
+        ax.add_patch(
+            Polygon(
+                ob.footprint,
+                closed=True,
+                facecolor=_FACE.get(ob.role, "#665544"),
+                edgecolor="k",
+                lw=0.4,
+                alpha=0.9,
+            )
+        )
     if goals is not None and start is not None and len(goals):
         route = np.vstack([np.asarray(start)[None, :2], np.asarray(goals)[:, :2]])
         ax.plot(route[:, 0], route[:, 1], "--", color="white", lw=0.8)
-        ax.plot(goals[:, 0], goals[:, 1], "o", ms=3.0, mfc="white", mec="black", mew=0.5, label="expert goals")
+        ax.plot(
+            goals[:, 0],
+            goals[:, 1],
+            "o",
+            ms=3.0,
+            mfc="white",
+            mec="black",
+            mew=0.5,
+            label="expert goals",
+        )
     if start is not None:
         ax.plot(start[0], start[1], "o", ms=7, mfc="#22aa22", mec="black", mew=0.6, label="P_A")
     if end is not None:
         ax.plot(end[0], end[1], "*", ms=11, mfc="#dd2222", mec="black", mew=0.6, label="P_B")
     if waypoint is not None:
-        ax.plot(waypoint[0], waypoint[1], "D", ms=5.5, mfc="#ffa500", mec="black", mew=0.6, label="waypoint")
+        ax.plot(
+            waypoint[0],
+            waypoint[1],
+            "D",
+            ms=5.5,
+            mfc="#ffa500",
+            mec="black",
+            mew=0.6,
+            label="waypoint",
+        )
     ax.set_xlim(ext[0], ext[1])
     ax.set_ylim(ext[2], ext[3])
     ax.set_aspect("equal")
@@ -82,26 +115,47 @@ def _save(fig, path: str | Path, dpi: int) -> Path:
     return p
 
 
-def save_trail_preview(trail: Trail, path: str | Path, dpi: int = 80, title: str | None = None) -> Path:
+def save_trail_preview(
+    trail: Trail, path: str | Path, dpi: int = 80, title: str | None = None
+) -> Path:
     """Write a top-down PNG of ``trail`` (about 400 px wide for a 12 m x 5 m tile)."""
     aspect = trail.length / trail.width
     fig_w = 5.0 if aspect < 4 else 8.0
     fig, ax = plt.subplots(figsize=(fig_w, fig_w / aspect + 0.9))
     im = draw_top_down(
-        ax, trail.heights, trail.surface, trail.pit, trail.origin, trail.resolution, trail.obstacles,
-        trail.start, trail.end, trail.waypoint, trail.goals,
+        ax,
+        trail.heights,
+        trail.surface,
+        trail.pit,
+        trail.origin,
+        trail.resolution,
+        trail.obstacles,
+        trail.start,
+        trail.end,
+        trail.waypoint,
+        trail.goals,
     )
     cb = fig.colorbar(im, ax=ax, fraction=0.03, pad=0.01)
     cb.ax.tick_params(labelsize=6)
     cb.set_label("height (m)", fontsize=6)
-    ax.set_title(title or f"{trail.category} level {trail.level} (seed {trail.seed}, variant {trail.variant})", fontsize=8)
+    ax.set_title(
+        title
+        or f"{trail.category} level {trail.level} (seed {trail.seed}, variant {trail.variant})",
+        fontsize=8,
+    )
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=4, fontsize=6, frameon=False)
     fig.tight_layout()
     return _save(fig, path, dpi)
 
 
 def save_primitive_preview(
-    name: str, level: int, seed: int, path: str | Path, width: float = 5.0, resolution: float = 0.1, dpi: int = 80
+    name: str,
+    level: int,
+    seed: int,
+    path: str | Path,
+    width: float = 5.0,
+    resolution: float = 0.1,
+    dpi: int = 80,
 ) -> Path:
     """Write a top-down PNG of one primitive between two 1 m flat pads, with its goal spots."""
     patch = make_primitive(name, level, seed, width=width, resolution=resolution)
@@ -116,7 +170,7 @@ def save_primitive_preview(
     rasterise_tops(cv.obstacles, surface, origin, resolution)
     goals = np.array([[s.x, s.y] for s in spots]).reshape(-1, 2)
     aspect = cv.length / width
-    fig, ax = plt.subplots(figsize=(5.0, max(2.2, 5.0 / aspect + 0.8)))
+    fig, ax = plt.subplots(figsize=(5.0, min(3.75, max(2.2, 4.2 / aspect + 0.9))))
     im = draw_top_down(ax, cv.heights, surface, cv.pit, origin, resolution, cv.obstacles)
     if len(goals):
         ax.plot(goals[:, 0], goals[:, 1], "o", ms=3.5, mfc="white", mec="black", mew=0.5)

@@ -33,7 +33,9 @@ def _flat(n: int, width: float, resolution: float) -> tuple[np.ndarray, np.ndarr
     return np.zeros((n, ys.size)), np.zeros((n, ys.size), dtype=bool)
 
 
-def _crossing_spots(cx: float, cy: float, yaw: float, half_thick: float, route_y: float) -> list[Spot]:
+def _crossing_spots(
+    cx: float, cy: float, yaw: float, half_thick: float, route_y: float
+) -> list[Spot]:
     """Take-off and landing spots where the line y = route_y crosses a long obstacle whose long
     axis is (-sin yaw, cos yaw), placed along its normal (cos yaw, sin yaw)."""
     s = (route_y - cy) / math.cos(yaw)
@@ -57,7 +59,11 @@ def hurdle(
     check_level(level)
     hh = _draw("hurdle_height", height, level, rng)
     yaw_abs = _draw("hurdle_yaw_deg", None if yaw_deg is None else abs(yaw_deg), level, rng)
-    sgn = (1.0 if rng.random() < 0.5 else -1.0) if yaw_deg is None else (1.0 if yaw_deg >= 0 else -1.0)
+    sgn = (
+        (1.0 if rng.random() < 0.5 else -1.0)
+        if yaw_deg is None
+        else (1.0 if yaw_deg >= 0 else -1.0)
+    )
     yaw = math.radians(sgn * yaw_abs)
     t = rng.uniform(0.10, 0.20)
     half_len = (width / 2.0 - 0.1 - t / 2.0 * abs(math.sin(yaw))) / math.cos(yaw)
@@ -157,11 +163,24 @@ def rocks(
     h, pit = _flat(n, width, resolution)
     k = int(math.floor(c + 1e-9))
     heights = [hmax] + [hmax * rng.uniform(0.6, 1.0) for _ in range(k - 1)]
-    dims = [(hk, max(0.08, hk * rng.uniform(1.0, 1.8)), max(0.08, hk * rng.uniform(1.0, 1.8))) for hk in heights]
-    spots_xy = _scatter(rng, [max(rx, ry) for _, rx, ry in dims], (0.3, n * resolution - 0.3), width / 2.0 - 0.3, 0.3)
+    dims = [
+        (hk, max(0.08, hk * rng.uniform(1.0, 1.8)), max(0.08, hk * rng.uniform(1.0, 1.8)))
+        for hk in heights
+    ]
+    spots_xy = _scatter(
+        rng,
+        [max(rx, ry) for _, rx, ry in dims],
+        (0.3, n * resolution - 0.3),
+        width / 2.0 - 0.3,
+        0.3,
+    )
     obstacles: list[Obstacle] = []
     for (x, y, _), (hk, rx, ry) in zip(spots_xy, dims, strict=False):
-        obstacles.append(make_rock((x, y), (rx, ry), hk, rng.uniform(0, 2 * math.pi), rng, "rock", sample_friction(rng)))
+        obstacles.append(
+            make_rock(
+                (x, y), (rx, ry), hk, rng.uniform(0, 2 * math.pi), rng, "rock", sample_friction(rng)
+            )
+        )
     return Patch(
         "rocks",
         h,
@@ -193,7 +212,8 @@ def trees(
     radii = list(rng.uniform(0.10, 0.30, size=target))
     placed = _scatter(rng, radii, (0.3, n * resolution - 0.3), width / 2.0 - 0.3, w, tries=60)
     obstacles = [
-        make_trunk((x, y), r, rng.uniform(2.5, 4.0), "tree", sample_friction(rng)) for x, y, r in placed
+        make_trunk((x, y), r, rng.uniform(2.5, 4.0), "tree", sample_friction(rng))
+        for x, y, r in placed
     ]
     return Patch(
         "trees",
@@ -201,7 +221,11 @@ def trees(
         pit,
         obstacles=obstacles,
         friction=sample_friction(rng),
-        params={"tree_density": dens, "passage_width": w, "tree_count_realised": float(len(obstacles))},
+        params={
+            "tree_density": dens,
+            "passage_width": w,
+            "tree_count_realised": float(len(obstacles)),
+        },
         resolution=resolution,
     )
 
@@ -230,7 +254,16 @@ def narrow_passage(
     obstacles = []
     for lo, hi in ((-width / 2.0 + 0.05, yp - w / 2.0), (yp + w / 2.0, width / 2.0 - 0.05)):
         if hi - lo >= 0.1:
-            obstacles.append(make_box((cx, (lo + hi) / 2.0), (depth / 2.0, (hi - lo) / 2.0), tall, 0.0, "wall", friction))
+            obstacles.append(
+                make_box(
+                    (cx, (lo + hi) / 2.0),
+                    (depth / 2.0, (hi - lo) / 2.0),
+                    tall,
+                    0.0,
+                    "wall",
+                    friction,
+                )
+            )
     spots = [
         Spot(approach - TAKEOFF_DISTANCE, yp, "passage"),
         Spot(cx, yp, "passage"),

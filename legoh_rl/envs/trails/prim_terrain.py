@@ -37,13 +37,19 @@ def _draw(name: str, value: float | None, level: int, rng: np.random.Generator) 
     return PARAMS[name].sample(level, rng) if value is None else float(value)
 
 
-def _empty(nx: int, width: float, resolution: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _empty(
+    nx: int, width: float, resolution: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     xs, ys = axes(nx, width, resolution)
     return xs, ys, np.zeros((nx, ys.size)), np.zeros((nx, ys.size), dtype=bool)
 
 
 def flat(
-    level: int, rng: np.random.Generator, width: float = 5.0, resolution: float = 0.1, length: float | None = None
+    level: int,
+    rng: np.random.Generator,
+    width: float = 5.0,
+    resolution: float = 0.1,
+    length: float | None = None,
 ) -> Patch:
     """Flat ground, 1-2 m long. No difficulty parameter (friction is random)."""
     check_level(level)
@@ -66,7 +72,14 @@ def rough(
     n = num_samples(rng.uniform(1.5, 2.5) if length is None else length, resolution)
     _, ys, _, pit = _empty(n, width, resolution)
     h = rough_field((n, ys.size), amp, resolution, rng) * taper(n, resolution, 0.3)[:, None]
-    return Patch("rough", h, pit, friction=sample_friction(rng), params={"rough_amplitude": amp}, resolution=resolution)
+    return Patch(
+        "rough",
+        h,
+        pit,
+        friction=sample_friction(rng),
+        params={"rough_amplitude": amp},
+        resolution=resolution,
+    )
 
 
 def _slope(
@@ -155,7 +168,9 @@ def _stairs(
     step_no = np.where(idx < n_a, 0, np.minimum((idx - n_a) // n_t + 1, k))
     prof = direction * step_no * hs
     h[:] = prof[:, None]
-    spot = Spot((n_a + k * n_t + n_l / 2.0) * resolution, route_y, "top" if direction > 0 else "foot")
+    spot = Spot(
+        (n_a + k * n_t + n_l / 2.0) * resolution, route_y, "top" if direction > 0 else "foot"
+    )
     return Patch(
         name,
         h,
@@ -179,7 +194,9 @@ def stairs_up(
     route_y: float = 0.0,
 ) -> Patch:
     """3-5 steps up (``step_height``, ``stair_tread``), total rise <= 0.8 m, then a landing."""
-    return _stairs("stairs_up", 1.0, level, rng, width, resolution, step_height, tread, steps, route_y)
+    return _stairs(
+        "stairs_up", 1.0, level, rng, width, resolution, step_height, tread, steps, route_y
+    )
 
 
 def stairs_down(
@@ -193,7 +210,9 @@ def stairs_down(
     route_y: float = 0.0,
 ) -> Patch:
     """3-5 steps down (``step_height``, ``stair_tread``), total drop <= 0.8 m, then a landing."""
-    return _stairs("stairs_down", -1.0, level, rng, width, resolution, step_height, tread, steps, route_y)
+    return _stairs(
+        "stairs_down", -1.0, level, rng, width, resolution, step_height, tread, steps, route_y
+    )
 
 
 def ditch(
@@ -213,7 +232,9 @@ def ditch(
     bottom = rng.uniform(0.3, 0.6)
     bank = d / math.tan(math.radians(beta))
     a = 0.3
-    knots = np.array([0.0, a, a + bank, a + bank + bottom, a + 2 * bank + bottom, 2 * a + 2 * bank + bottom])
+    knots = np.array(
+        [0.0, a, a + bank, a + bank + bottom, a + 2 * bank + bottom, 2 * a + 2 * bank + bottom]
+    )
     n = num_samples(knots[-1], resolution) + 1
     xs, _, h, pit = _empty(n, width, resolution)
     prof = np.interp(xs, knots, [0.0, 0.0, -d, -d, 0.0, 0.0])
@@ -256,7 +277,9 @@ def gap(
     check_level(level)
     g = _draw("gap_width", gap_width, level, rng)
     off = _draw("platform_offset", None if offset is None else abs(offset), level, rng)
-    sign = (1.0 if rng.random() < 0.5 else -1.0) if offset is None else (1.0 if offset >= 0 else -1.0)
+    sign = (
+        (1.0 if rng.random() < 0.5 else -1.0) if offset is None else (1.0 if offset >= 0 else -1.0)
+    )
     n_g = max(1, int(round(g / resolution)))
     n_a = num_samples(0.5, resolution)
     n_e = num_samples(max_widen, resolution) if widen > 0 else 0
@@ -265,7 +288,9 @@ def gap(
     _, ys, h, pit = _empty(n, width, resolution)
     extra = np.zeros(ys.size, dtype=int)
     if widen > 0:
-        extra = np.minimum(np.round(np.minimum(widen * np.abs(ys - route_y), max_widen) / resolution), n_e).astype(int)
+        extra = np.minimum(
+            np.round(np.minimum(widen * np.abs(ys - route_y), max_widen) / resolution), n_e
+        ).astype(int)
     land = sign * off
     bottom = min(0.0, land) - pit_depth(level)
     idx = np.arange(n)[:, None]
@@ -344,7 +369,16 @@ def _stones(
     }
     if staggered:
         params["stagger_offset"] = off
-    return Patch(name, h, pit, spots=spots, exit_height=0.0, friction=sample_friction(rng), params=params, resolution=resolution)
+    return Patch(
+        name,
+        h,
+        pit,
+        spots=spots,
+        exit_height=0.0,
+        friction=sample_friction(rng),
+        params=params,
+        resolution=resolution,
+    )
 
 
 def stepping_stones(
@@ -359,7 +393,19 @@ def stepping_stones(
 ) -> Patch:
     """Square stones (``stone_size``) in a straight line across a 1.8-2.6 m pit field, separated
     by ``stone_gap``, heights in +-``stone_height_jitter``; goal spots on every stone."""
-    return _stones("stepping_stones", False, level, rng, width, resolution, size, stone_gap, jitter, None, route_y)
+    return _stones(
+        "stepping_stones",
+        False,
+        level,
+        rng,
+        width,
+        resolution,
+        size,
+        stone_gap,
+        jitter,
+        None,
+        route_y,
+    )
 
 
 def staggered_stones(
@@ -374,7 +420,19 @@ def staggered_stones(
     route_y: float | None = None,
 ) -> Patch:
     """Like ``stepping_stones`` but alternating +-``stagger_offset`` left and right of the line."""
-    return _stones("staggered_stones", True, level, rng, width, resolution, size, stone_gap, jitter, offset, route_y)
+    return _stones(
+        "staggered_stones",
+        True,
+        level,
+        rng,
+        width,
+        resolution,
+        size,
+        stone_gap,
+        jitter,
+        offset,
+        route_y,
+    )
 
 
 def platform(
@@ -390,7 +448,11 @@ def platform(
     into a sunken area, then up) the ground, random direction."""
     check_level(level)
     hp = _draw("platform_height", height, level, rng)
-    sgn = (1.0 if rng.random() < 0.5 else -1.0) if direction is None else (1.0 if direction >= 0 else -1.0)
+    sgn = (
+        (1.0 if rng.random() < 0.5 else -1.0)
+        if direction is None
+        else (1.0 if direction >= 0 else -1.0)
+    )
     n_a = num_samples(0.4, resolution)
     n_p = num_samples(rng.uniform(0.8, 1.4), resolution)
     n_e = num_samples(0.4, resolution)

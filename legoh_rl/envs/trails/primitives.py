@@ -45,12 +45,54 @@ PRIMITIVES: dict[str, PrimitiveSpec] = {
     for s in (
         _s("flat", pt.flat, (), (0.0, 0.0), 0.0, "flat ground, 1-2 m"),
         _s("rough", pt.rough, ("rough_amplitude",), (-0.07, 0.07), 0.0, "uneven ground, 1.5-2.5 m"),
-        _s("slope_up", pt.slope_up, ("slope_deg",), (0.0, 0.61), 0.0, "ramp up over 1.0-1.5 m + flat top"),
-        _s("slope_down", pt.slope_down, ("slope_deg",), (-0.61, 0.0), 0.0, "ramp down over 1.0-1.5 m + flat foot"),
-        _s("stairs_up", pt.stairs_up, ("step_height", "stair_tread"), (0.0, 0.8), 0.0, "3-5 steps up, rise <= 0.8 m"),
-        _s("stairs_down", pt.stairs_down, ("step_height", "stair_tread"), (-0.8, 0.0), 0.0, "3-5 steps down, drop <= 0.8 m"),
-        _s("ditch", pt.ditch, ("ditch_depth", "bank_slope_deg"), (-0.5, 0.0), 0.0, "gully with sloped banks across the trail"),
-        _s("gap", pt.gap, ("gap_width", "platform_offset"), (-1.1, 0.1), 0.0, "pit across the trail between uneven platforms"),
+        _s(
+            "slope_up",
+            pt.slope_up,
+            ("slope_deg",),
+            (0.0, 0.61),
+            0.0,
+            "ramp up over 1.0-1.5 m + flat top",
+        ),
+        _s(
+            "slope_down",
+            pt.slope_down,
+            ("slope_deg",),
+            (-0.61, 0.0),
+            0.0,
+            "ramp down over 1.0-1.5 m + flat foot",
+        ),
+        _s(
+            "stairs_up",
+            pt.stairs_up,
+            ("step_height", "stair_tread"),
+            (0.0, 0.8),
+            0.0,
+            "3-5 steps up, rise <= 0.8 m",
+        ),
+        _s(
+            "stairs_down",
+            pt.stairs_down,
+            ("step_height", "stair_tread"),
+            (-0.8, 0.0),
+            0.0,
+            "3-5 steps down, drop <= 0.8 m",
+        ),
+        _s(
+            "ditch",
+            pt.ditch,
+            ("ditch_depth", "bank_slope_deg"),
+            (-0.5, 0.0),
+            0.0,
+            "gully with sloped banks across the trail",
+        ),
+        _s(
+            "gap",
+            pt.gap,
+            ("gap_width", "platform_offset"),
+            (-1.1, 0.1),
+            0.0,
+            "pit across the trail between uneven platforms",
+        ),
         _s(
             "stepping_stones",
             pt.stepping_stones,
@@ -67,11 +109,46 @@ PRIMITIVES: dict[str, PrimitiveSpec] = {
             0.0,
             "stones alternating left / right of a line over a pit field",
         ),
-        _s("hurdle", po.hurdle, ("hurdle_height", "hurdle_yaw_deg"), (0.0, 0.0), 0.32, "long cuboid across the trail"),
-        _s("platform", pt.platform, ("platform_height",), (-0.22, 0.22), 0.0, "platform step up/down (or sunken area)"),
-        _s("log", po.log, ("log_radius",), (0.0, 0.0), 0.32, "fallen log (horizontal cylinder) across the route"),
-        _s("rocks", po.rocks, ("rock_count", "rock_height"), (0.0, 0.0), 0.30, "field of rocks / boulders (convex meshes)"),
-        _s("trees", po.trees, ("tree_density", "passage_width"), (0.0, 0.0), 4.0, "band of upright tree trunks"),
+        _s(
+            "hurdle",
+            po.hurdle,
+            ("hurdle_height", "hurdle_yaw_deg"),
+            (0.0, 0.0),
+            0.32,
+            "long cuboid across the trail",
+        ),
+        _s(
+            "platform",
+            pt.platform,
+            ("platform_height",),
+            (-0.22, 0.22),
+            0.0,
+            "platform step up/down (or sunken area)",
+        ),
+        _s(
+            "log",
+            po.log,
+            ("log_radius",),
+            (0.0, 0.0),
+            0.32,
+            "fallen log (horizontal cylinder) across the route",
+        ),
+        _s(
+            "rocks",
+            po.rocks,
+            ("rock_count", "rock_height"),
+            (0.0, 0.0),
+            0.30,
+            "field of rocks / boulders (convex meshes)",
+        ),
+        _s(
+            "trees",
+            po.trees,
+            ("tree_density", "passage_width"),
+            (0.0, 0.0),
+            4.0,
+            "band of upright tree trunks",
+        ),
         _s(
             "narrow_passage",
             po.narrow_passage,
@@ -106,6 +183,8 @@ def make_primitive(
         The :class:`Patch` (heights (nx, ny) with ny = width / resolution).
     """
     if name not in PRIMITIVES:
-        raise ValueError(f"unknown terrain primitive {name!r}; valid primitives: {', '.join(PRIMITIVES)}")
+        raise ValueError(
+            f"unknown terrain primitive {name!r}; valid primitives: {', '.join(PRIMITIVES)}"
+        )
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
     return PRIMITIVES[name].fn(level, gen, width=width, resolution=resolution, **overrides)

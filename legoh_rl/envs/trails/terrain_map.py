@@ -62,10 +62,14 @@ class TerrainMap:
     ) -> None:
         self.bare = np.ascontiguousarray(bare, dtype=np.float64)
         if self.bare.ndim != 2 or min(self.bare.shape) < 2:
-            raise ValueError(f"bare heights must be a 2-D grid of at least 2 x 2, got shape {self.bare.shape}")
+            raise ValueError(
+                f"bare heights must be a 2-D grid of at least 2 x 2, got shape {self.bare.shape}"
+            )
         if not np.all(np.isfinite(self.bare)):
             raise ValueError("bare heights must be finite")
-        self.surface = self.bare if surface is None else np.ascontiguousarray(surface, dtype=np.float64)
+        self.surface = (
+            self.bare if surface is None else np.ascontiguousarray(surface, dtype=np.float64)
+        )
         if self.surface.shape != self.bare.shape:
             raise ValueError(f"surface shape {self.surface.shape} != bare shape {self.bare.shape}")
         if resolution <= 0:
@@ -74,7 +78,9 @@ class TerrainMap:
         self.resolution = float(resolution)
         self.edge_threshold = float(edge_threshold)
         self.edge_dilation = float(edge_dilation)
-        self.pit = np.zeros(self.bare.shape, dtype=bool) if pit is None else np.asarray(pit, dtype=bool)
+        self.pit = (
+            np.zeros(self.bare.shape, dtype=bool) if pit is None else np.asarray(pit, dtype=bool)
+        )
         cells = int(np.ceil(edge_dilation / resolution - 1e-9)) if edge_dilation > 0 else 0
         self.edge_mask = compute_edges(self.surface, self.edge_threshold, cells)
 
@@ -110,7 +116,9 @@ class TerrainMap:
         x0, x1, y0, y1 = self.extent
         return (xy[..., 0] >= x0) & (xy[..., 0] <= x1) & (xy[..., 1] >= y0) & (xy[..., 1] <= y1)
 
-    def height_at(self, xy: np.ndarray, surface: bool = True, interpolation: str = "bilinear") -> np.ndarray:
+    def height_at(
+        self, xy: np.ndarray, surface: bool = True, interpolation: str = "bilinear"
+    ) -> np.ndarray:
         """Terrain height under points.
 
         Args:
@@ -126,7 +134,9 @@ class TerrainMap:
             i, j = self.index_of(xy)
             return grid[i, j]
         if interpolation != "bilinear":
-            raise ValueError(f"unknown interpolation {interpolation!r}; valid: 'bilinear', 'nearest'")
+            raise ValueError(
+                f"unknown interpolation {interpolation!r}; valid: 'bilinear', 'nearest'"
+            )
         fi, fj = self._frac(xy)
         nx, ny = grid.shape
         i0 = np.minimum(np.floor(fi).astype(np.int64), nx - 2)
