@@ -24,7 +24,13 @@ from tqdm import tqdm
 
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
 from legoh_rl.training.builders import make_env, make_oracle, policy_meta, require_positive
-from legoh_rl.training.checkpoint import check_meta, load_checkpoint, rng_state, save_checkpoint, set_rng_state
+from legoh_rl.training.checkpoint import (
+    check_meta,
+    load_checkpoint,
+    rng_state,
+    save_checkpoint,
+    set_rng_state,
+)
 from legoh_rl.training.logging import make_logger
 from legoh_rl.training.stats import episode_stats, reward_term_stats
 

@@ -41,6 +41,7 @@ class BoxScene:
         for i, (c, h) in enumerate(self.boxes):
             g = spec.worldbody.add_geom()
             g.name = f"obstacle_{i}"
+            g.group = 1
             g.type = mujoco.mjtGeom.mjGEOM_BOX
             g.pos = c.tolist()
             g.size = h.tolist()
@@ -52,6 +53,9 @@ class BoxScene:
             inside = (np.abs(xy[:, 0] - c[0]) <= s[0]) & (np.abs(xy[:, 1] - c[1]) <= s[1])
             h = np.where(inside, np.maximum(h, c[2] + s[2]), h)
         return h
+
+    def ground_height_at(self, xy):
+        return np.zeros(np.asarray(xy).shape[0])
 
     def edge_at(self, xy):
         xy = np.asarray(xy)

@@ -59,6 +59,8 @@ class TrailSource(Protocol):
     Per-tile arrays (T tiles, G max goals): ``tile_level`` (T,) int, ``tile_category`` (T,) int
     (index into ``categories``), ``tile_start``, ``tile_end``, ``tile_waypoint`` (T, 3) world
     coordinates, ``tile_goals`` (T, G, 3) padded, ``tile_num_goals`` (T,) int.
+    ``height_at`` is the surface (ground and obstacle tops), ``ground_height_at`` the bare ground
+    (geom group 0; obstacles are in group 1).
     """
 
     categories: tuple[str, ...]
@@ -74,6 +76,8 @@ class TrailSource(Protocol):
     def add_to_spec(self, spec: mujoco.MjSpec) -> None: ...
 
     def height_at(self, xy: np.ndarray) -> np.ndarray: ...
+
+    def ground_height_at(self, xy: np.ndarray) -> np.ndarray: ...
 
     def edge_at(self, xy: np.ndarray) -> np.ndarray: ...
 
@@ -453,7 +457,12 @@ class HikingEnv(EnvBase):
         # camera pose at the current state (kinematics of the last call)
         pos = self.worlds.cam_xpos[ids, cam]
         mat = self.worlds.cam_xmat[ids, cam].reshape(-1, 3, 3)
-        self.depth[ids] = self.camera.render(self.worlds.batch, pos, mat, ids, self.rng)
+        self.depth[ids] = self.camera.render(
+            self.worlds.batch, pos, mat, ids,
+            getattr(self.trails, "height_at_t", self.trails.height_at),
+            getattr(self.trails, "ground_height_at_t", self.trails.ground_height_at),
+            self.rng,
+        )
 
     def _observations(self, s: dict) -> dict:
         yaw = s["yaw"]

@@ -42,6 +42,8 @@ __all__ = [
     "ROBOT_CONAFFINITY",
     "ROBOT_GEOM_GROUPS",
     "TERRAIN_GEOM_GROUPS",
+    "GROUND_GEOM_GROUP",
+    "OBSTACLE_GEOM_GROUP",
 ]
 
 ROBOT_CONTYPE = 2
@@ -49,6 +51,8 @@ ROBOT_CONAFFINITY = 1
 # (visual, collision) geom groups of the robot; the terrain uses groups 0 and 1.
 ROBOT_GEOM_GROUPS = (2, 3)
 TERRAIN_GEOM_GROUPS = (0, 1)
+# within the terrain: group 0 = the ground (heightfield / plane), group 1 = obstacles
+GROUND_GEOM_GROUP, OBSTACLE_GEOM_GROUP = TERRAIN_GEOM_GROUPS
 
 
 @dataclass(frozen=True)
@@ -266,7 +270,8 @@ def resolve_model_dir(spec: RobotSpec) -> Path:
 
 
 class TerrainBuilder(Protocol):
-    """Anything that adds static terrain (heightfield, obstacle geoms) to a model spec."""
+    """Anything that adds static terrain to a model spec: the ground (heightfield or plane) in
+    geom group 0 and obstacles in group 1 (the depth camera relies on this split)."""
 
     def add_to_spec(self, spec: mujoco.MjSpec) -> None:
         """Add the terrain to ``spec.worldbody``."""
@@ -396,9 +401,7 @@ def build_model(
         if geom.group < ROBOT_GEOM_GROUPS[0]:
             geom.group = ROBOT_GEOM_GROUPS[1] if collides else ROBOT_GEOM_GROUPS[0]
 
-    for name, q0, kp, kd, tau in zip(
-        robot.leg_joints, robot.default_joint_pos, robot.kp, robot.kd, robot.torque_limits, strict=True
-    ):
+    for name, kp, kd, tau in zip(robot.leg_joints, robot.kp, robot.kd, robot.torque_limits, strict=True):
         act = spec.add_actuator()
         act.name = name
         act.target = name

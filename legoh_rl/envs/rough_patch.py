@@ -66,6 +66,7 @@ class RoughPatch:
             hz = rng.uniform(0.03, self.box_height) / 2
             box = spec.worldbody.add_geom()
             box.name = f"obstacle_box_{placed}"
+            box.group = 1
             box.type = mujoco.mjtGeom.mjGEOM_BOX
             box.size = [hx, hy, hz]
             box.pos = [x, y, hz]

@@ -11,12 +11,15 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
+import torch
 
-from legoh_rl.envs.robots import TERRAIN_GEOM_GROUPS
+from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP
 
 __all__ = [
     "DepthCameraConfig",
     "DepthCamera",
+    "march_ground",
+    "torch_height_fn",
     "scandot_offsets",
     "scandots",
     "quat_to_rotmat",
@@ -54,10 +57,10 @@ class DepthCameraConfig:
 
 
 class DepthCamera:
-    """Renders the head depth camera of many worlds with one ``Batch.ray`` call.
+    """Renders the head depth camera of many worlds at once.
 
-    Rays see only geoms of the terrain groups (0 and 1), so the robot's own body never
-    occludes the view.
+    Rays see only the terrain: the ground (group 0) and obstacles (group 1), so the robot's own
+    body (groups 2 and 3) never occludes the view.
 
     Args:
         cfg: the camera configuration.
@@ -76,8 +79,9 @@ class DepthCamera:
         dirs = np.stack([uu, vv, -np.ones_like(uu)], axis=-1).reshape(-1, 3)  # camera frame
         self._axis_cos = 1.0 / np.linalg.norm(dirs, axis=1)  # cos(angle to the optical axis)
         self._dirs_cam = dirs * self._axis_cos[:, None]  # unit rays
-        self._groups = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
-        self._groups[list(TERRAIN_GEOM_GROUPS)] = 1
+        # MuJoCo rays see only obstacles (group 1); the ground (group 0) is ray-marched.
+        self._obstacle_groups = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
+        self._obstacle_groups[OBSTACLE_GEOM_GROUP] = 1
 
     def render(
         self,
@@ -85,15 +89,26 @@ class DepthCamera:
         cam_pos: np.ndarray,
         cam_mat: np.ndarray,
         ids: np.ndarray,
+        surface_fn: Callable[[np.ndarray], np.ndarray],
+        ground_fn: Callable[[np.ndarray], np.ndarray],
         rng: np.random.Generator | None = None,
     ) -> np.ndarray:
         """Depth images of worlds ``ids``.
+
+        Every ray is first marched (:func:`march_ground`) against the surface height map, where
+        obstacles appear as their rasterised tops. Rays whose hit lies on an obstacle cell are
+        then resolved exactly: ``Batch.ray`` against the obstacle geoms (group 1), and a march
+        against the bare ground (group 0) for rays that pass beside them. MuJoCo's own
+        ray-heightfield test scans every cell in the bounding rectangle of the ray's path,
+        hundreds of cells per ray on a trail grid, which made depth 40x slower than physics.
 
         Args:
             batch: the ``mujoco.batch.Batch`` of the worlds.
             cam_pos: camera positions of those worlds, (n, 3).
             cam_mat: camera rotation matrices, (n, 3, 3) (columns = camera axes in world).
             ids: world indices, (n,).
+            surface_fn: surface height (ground and obstacle tops), (M, 2) -> (M,).
+            ground_fn: bare ground height at world xy points, (M, 2) -> (M,).
             rng: noise generator (needed when noise or dropout is on).
 
         Returns:
@@ -104,9 +119,18 @@ class DepthCamera:
         if n == 0:
             return np.zeros((0, 1, cfg.height, cfg.width), dtype=np.float32)
         vec = np.einsum("nij,rj->nri", cam_mat, self._dirs_cam)
-        pnt = np.broadcast_to(cam_pos[:, None, :], vec.shape)
-        dist, _ = batch.ray(pnt, vec, geomgroup=self._groups, flg_static=True, ids=ids.astype(np.int32))
-        z = np.where(dist < 0.0, cfg.far, dist * self._axis_cos[None, :])
+        t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
+        # 1) march every ray against the surface map (ground + rasterised obstacle tops)
+        dist = march_ground(cam_pos, vec, t_max, surface_fn)
+        # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march
+        hit_xy = cam_pos[:, None, :2] + np.where(np.isfinite(dist), dist, 0.0)[..., None] * vec[..., :2]
+        flat_xy = torch.as_tensor(hit_xy.reshape(-1, 2), dtype=torch.float32)
+        rise = torch_height_fn(surface_fn)(flat_xy) - torch_height_fn(ground_fn)(flat_xy)
+        on_obstacle = rise.numpy().reshape(dist.shape) > 0.02
+        on_obstacle &= np.isfinite(dist)
+        if on_obstacle.any():
+            dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn)
+        z = np.where(np.isfinite(dist), dist * self._axis_cos[None, :], cfg.far)
         depth = (np.clip(z, cfg.near, cfg.far) - cfg.near) / (cfg.far - cfg.near)
         if cfg.noise_std > 0.0 or cfg.dropout > 0.0:
             if rng is None:
@@ -116,6 +140,94 @@ class DepthCamera:
             if cfg.dropout > 0.0:
                 depth = np.where(rng.random(depth.shape) < cfg.dropout, 0.0, depth)
         return depth.reshape(n, 1, cfg.height, cfg.width).astype(np.float32)
+
+    def _exact_on_obstacles(self, batch, cam_pos, vec, t_max, ids, flagged, dist, ground_fn) -> np.ndarray:
+        """Exact distances for the ``flagged`` (n, R) rays; one padded ``Batch.ray`` call."""
+        n = ids.size
+        counts = flagged.sum(axis=1)
+        k = int(counts.max())
+        order = np.argsort(~flagged, axis=1, kind="stable")[:, :k]  # flagged rays first
+        valid = np.arange(k)[None, :] < counts[:, None]
+        sub_vec = np.take_along_axis(vec, order[..., None], axis=1)
+        sub_pnt = np.broadcast_to(cam_pos[:, None, :], sub_vec.shape)
+        obs, _ = batch.ray(sub_pnt, sub_vec, geomgroup=self._obstacle_groups, flg_static=True,
+                           ids=ids.astype(np.int32))
+        ground = march_ground(cam_pos, sub_vec, np.take_along_axis(t_max, order, axis=1), ground_fn)
+        exact = np.minimum(np.where(obs < 0.0, np.inf, obs), ground)
+        out = dist.copy()
+        rows = np.repeat(np.arange(n), k).reshape(n, k)
+        out[rows[valid], order[valid]] = exact[valid]
+        return out
+
+
+def march_ground(
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    t_max: np.ndarray,
+    ground_fn: Callable,
+    samples: int = 24,
+    refine: int = 3,
+) -> np.ndarray:
+    """First intersection of rays with a height map, vectorised over every ray (torch, float32).
+
+    Each ray ``o + t d`` is sampled at ``samples`` points in (0, t_max]; the first sample below
+    the ground brackets the hit, which ``refine`` regula-falsi steps then locate (exact where the
+    ground is planar between the bracket's ends).
+
+    Args:
+        origin: ray origins per world, (n, 3).
+        dirs: unit ray directions, (n, R, 3).
+        t_max: longest distance to look along each ray, (n, R).
+        ground_fn: height at xy points, (M, 2) -> (M,); a torch function (tensor in, tensor out,
+            see :func:`torch_height_fn`) or a numpy one.
+        samples: coarse samples per ray.
+        refine: regula-falsi iterations inside the bracket.
+
+    Returns:
+        (n, R) float64 distance to the hit along each ray; ``inf`` where the ray stays above.
+    """
+    fn = torch_height_fn(ground_fn)
+    o = torch.as_tensor(origin, dtype=torch.float32)
+    d = torch.as_tensor(np.ascontiguousarray(dirs), dtype=torch.float32)
+    tm = torch.as_tensor(np.ascontiguousarray(t_max), dtype=torch.float32)
+    n, r, _ = d.shape
+    frac = torch.arange(1, samples + 1, dtype=torch.float32) / samples
+    t = tm[..., None] * frac  # (n, R, S)
+    ox, oy, oz = (o[:, i, None, None] for i in range(3))
+    dx, dy, dz = (d[..., i, None] for i in range(3))
+    xy = torch.stack([ox + t * dx, oy + t * dy], dim=-1).reshape(-1, 2)
+    f = oz + t * dz - fn(xy).reshape(n, r, samples)
+    z0 = (o[:, 2] - fn(o[:, :2]))[:, None].expand(n, r)  # camera height above the ground
+    below = f <= 0.0
+    hit = below.any(dim=-1)
+    k = below.to(torch.int8).argmax(dim=-1, keepdim=True)  # first sample below the ground
+    t_hi, f_hi = t.gather(-1, k)[..., 0], f.gather(-1, k)[..., 0]
+    prev = (k - 1).clamp_min(0)
+    first = k[..., 0] == 0
+    t_lo = torch.where(first, torch.zeros_like(t_hi), t.gather(-1, prev)[..., 0])
+    f_lo = torch.where(first, z0, f.gather(-1, prev)[..., 0])
+    o3, d3 = o[:, None, :], d
+    for _ in range(refine):
+        t_mid = t_lo + (t_hi - t_lo) * (f_lo / (f_lo - f_hi).clamp_min(1e-9)).clamp(0.0, 1.0)
+        p = o3 + t_mid[..., None] * d3
+        f_mid = p[..., 2] - fn(p[..., :2].reshape(-1, 2)).reshape(n, r)
+        above = f_mid > 0.0
+        t_lo, f_lo = torch.where(above, t_mid, t_lo), torch.where(above, f_mid, f_lo)
+        t_hi, f_hi = torch.where(above, t_hi, t_mid), torch.where(above, f_hi, f_mid)
+    t_hit = t_lo + (t_hi - t_lo) * (f_lo / (f_lo - f_hi).clamp_min(1e-9)).clamp(0.0, 1.0)
+    return torch.where(hit, t_hit, torch.full_like(t_hit, float("inf"))).double().numpy()
+
+
+def torch_height_fn(fn: Callable) -> Callable:
+    """A height function on torch tensors: ``fn`` itself if it is marked ``torch_native``,
+    else a wrapper converting to and from numpy."""
+    if getattr(fn, "torch_native", False):
+        return fn
+
+    def wrapped(xy: torch.Tensor) -> torch.Tensor:
+        return torch.as_tensor(fn(xy.double().numpy()), dtype=torch.float32)
+
+    return wrapped
 
 
 def scandot_offsets() -> np.ndarray:

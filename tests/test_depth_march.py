@@ -1,0 +1,40 @@
+"""The ray-marched depth camera agrees with MuJoCo's exact ray casting on real trails."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.robots import TERRAIN_GEOM_GROUPS
+from legoh_rl.envs.trail_source import trails_for
+
+
+@pytest.mark.parametrize("category,level", [("ditch", 3), ("gap", 4), ("forest", 2)])
+def test_march_matches_mujoco_rays(category, level):
+    trails = trails_for((category,), variants=1, seed=1)
+    env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=4, mode="student", categories=(category,),
+                                    levels=(level,), num_threads=1), trails=trails)
+    env.reset()
+    # walk the robots forward a bit so the view covers the trail's features
+    w = env.worlds
+    w.qpos[:, 0] += np.array([0.5, 2.0, 3.5, 5.0])
+    w.batch.forward()
+    ids = np.arange(4)
+    cam = env.built.camera_id
+    pos, mat = w.cam_xpos[ids, cam], w.cam_xmat[ids, cam].reshape(-1, 3, 3)
+    fast = env.camera.render(w.batch, pos, mat, ids, trails.height_at, trails.ground_height_at)
+    # reference: MuJoCo rays against ground and obstacles (the slow exact path)
+    groups = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
+    groups[list(TERRAIN_GEOM_GROUPS)] = 1
+    vec = np.einsum("nij,rj->nri", mat, env.camera._dirs_cam)
+    dist, _ = w.batch.ray(np.broadcast_to(pos[:, None], vec.shape), vec, geomgroup=groups, ids=ids.astype(np.int32))
+    c = env.cfg.depth_camera
+    z = np.where(dist < 0, c.far, dist * env.camera._axis_cos)
+    ref = ((np.clip(z, c.near, c.far) - c.near) / (c.far - c.near)).reshape(fast.shape)
+    err_m = np.abs(fast - ref) * (c.far - c.near)
+    # bilinear height map vs MuJoCo's triangulated heightfield, and 24 coarse samples per ray
+    # at depth discontinuities (pit rims, stepping stones; measured on gap-4: 97.2% of pixels
+    # within 2 cm, 99.0% within 10 cm)
+    assert np.median(err_m) < 0.005
+    assert np.mean(err_m < 0.02) > 0.96
+    assert np.mean(err_m < 0.10) > 0.985
