@@ -250,3 +250,14 @@ def test_curriculum_moves_levels_by_progress():
     # 90% -> up; 10% -> down; 50% -> stays; top level + up -> random level; 0% at level 4 -> 3
     assert new[0] == 1 and new[1] == 1 and new[2] == 2 and 0 <= new[3] < 5 and new[4] == 3
     assert c.update(np.array([1]), np.array([0.0]), np.array([10.0]), np.array([True]), rng)[0] == 2  # reached
+
+
+def test_only_positive_rewards_clips_the_total_not_the_terms():
+    for clip in (True, False):
+        env = make(n=2, only_positive_rewards=clip)
+        env.reset()
+        nxt = act(env, 2.0 * torch.ones(2, env.A))  # a violent step: penalties dominate
+        terms = sum(v for v in nxt["reward_terms"].values())
+        expect = terms.clamp_min(0.0) if clip else terms
+        torch.testing.assert_close(nxt["reward"], expect, rtol=1e-5, atol=1e-6)
+        assert (terms < 0).any()

@@ -42,6 +42,9 @@ class HikingEnvConfig:
         action_clip: actions are clipped to [-clip, clip] (the action spec's bounds).
         spawn_jitter_xy, spawn_jitter_yaw: random spawn offsets in training (m, rad).
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
+        only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
+            Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
+            to end its episode). The logged terms are left unclipped.
         domain_rand, curriculum: see their modules.
         trail_tile_size: (length, width) of a trail tile, m (passed to the trail grid).
         seed: seeds the trails, spawns, randomisation and noise.
@@ -74,6 +77,7 @@ class HikingEnvConfig:
     spawn_jitter_xy: float = 0.2
     spawn_jitter_yaw: float = 0.3
     reward_overrides: dict[str, float] = field(default_factory=dict)
+    only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
     seed: int = 0

@@ -273,6 +273,8 @@ class HikingEnv(EnvBase):
         state = self._read_state()
         self._advance_goals(state)
         total, terms = compute_rewards(self._reward_state(state), self.weights)
+        if self.cfg.only_positive_rewards:
+            total = np.maximum(total, 0.0)
         self.metrics.record_step(state["contact"], state["foot_on_edge"])
 
         fell = (
