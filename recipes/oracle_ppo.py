@@ -96,28 +96,37 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
     return stats
 
 
-def train(cfg: DictConfig) -> dict:
-    """Run the oracle training described by ``cfg``; returns a summary of the last iteration."""
+def build(cfg: DictConfig, env=None) -> dict:
+    """Env, networks, loss, optimiser and counters, restored from the checkpoint to resume."""
     validate(cfg)
     torch.set_num_threads(int(cfg.torch_threads))
     torch.manual_seed(int(cfg.env.seed))
-    env = make_env(cfg.env, mode="oracle")
+    env = env if env is not None else make_env(cfg.env, mode="oracle")
     networks, actor, critic = make_oracle(env, cfg.model.init_std)
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
-    meta = policy_meta(env, "oracle")
-    ckpt_dir = Path(cfg.checkpoint.dir)
-    iteration, frames, run_id = 0, 0, None
+    parts = {"env": env, "networks": networks, "actor": actor, "loss": loss, "gae": gae, "optim": optim,
+             "sched": sched, "meta": policy_meta(env, "oracle"), "iteration": 0, "frames": 0, "run_id": None}
     path = resume_path(cfg)
     if path is not None:
         state = load_checkpoint(path)
-        check_meta(state["meta"], meta, path)
+        check_meta(state["meta"], parts["meta"], path)
         loss.load_state_dict(state["loss"])
         optim.load_state_dict(state["optim"])
         sched.load_state_dict(state["sched"])
         env.load_state_dict(state["env"])
         set_rng_state(state["rng"])
-        iteration, frames, run_id = state["iteration"], state["frames"], state.get("run_id")
-        print(f"resumed from {path}: iteration {iteration}, {frames} frames")
+        parts.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
+        print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
+    return parts
+
+
+def train(cfg: DictConfig, env=None) -> dict:
+    """Run the oracle training described by ``cfg``; returns a summary of the last iteration."""
+    p = build(cfg, env)
+    env, networks, actor, loss, gae, optim, sched = (p[k] for k in ("env", "networks", "actor", "loss", "gae",
+                                                                    "optim", "sched"))
+    meta, iteration, frames, run_id = p["meta"], p["iteration"], p["frames"], p["run_id"]
+    ckpt_dir = Path(cfg.checkpoint.dir)
 
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
                          cfg.logger.online, run_id, OmegaConf.to_container(cfg, resolve=True))

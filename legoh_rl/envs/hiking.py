@@ -509,6 +509,30 @@ class HikingEnv(EnvBase):
         data["info"] = {"diverged": t(info[0], torch.bool).reshape(N, 1), "bad_action": t(info[1], torch.bool).reshape(N, 1)}
         return TensorDict(data, batch_size=[N], device=dev)
 
+    # ------------------------------------------------------------------ evaluation protocol
+    def assign_tiles(self, levels: np.ndarray, categories: np.ndarray) -> None:
+        """Pin each world to a trail level and category (an evaluation cell).
+
+        Takes effect at each world's next reset; with the curriculum off (eval mode) the worlds
+        stay in their cells. ``categories`` are indices into ``trails.categories``.
+
+        Args:
+            levels: (N,) int levels.
+            categories: (N,) int category indices.
+        """
+        levels = np.asarray(levels, dtype=np.int64).reshape(-1)
+        categories = np.asarray(categories, dtype=np.int64).reshape(-1)
+        n = self.cfg.num_envs
+        if levels.shape != (n,) or categories.shape != (n,):
+            raise ValueError(f"need one level and one category per world ({n}), got {levels.shape}, {categories.shape}")
+        if levels.min() < 0 or levels.max() >= self.trails.num_levels:
+            raise ValueError(f"levels must lie in [0, {self.trails.num_levels}), got {np.unique(levels).tolist()}")
+        known = np.unique(self.trails.tile_category)
+        if not np.isin(categories, known).all():
+            raise ValueError(f"category indices must be among {known.tolist()}, got {np.unique(categories).tolist()}")
+        self.curriculum.levels[:] = levels
+        self.world_category[:] = categories
+
     # ------------------------------------------------------------------ checkpoint state
     def state_dict(self) -> dict:
         """Curriculum, rng and counters, for checkpoints (the physics state is not saved)."""

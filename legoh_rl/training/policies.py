@@ -1,0 +1,66 @@
+"""Load a policy checkpoint (oracle, student, or the zero-action baseline) with its eval env."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.modules.configs import OracleConfig
+from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor
+from legoh_rl.training.builders import policy_meta
+from legoh_rl.training.checkpoint import check_meta, load_checkpoint
+
+__all__ = ["ZeroPolicy", "load_policy", "eval_env"]
+
+
+class ZeroPolicy(TensorDictModuleBase):
+    """Action 0 for every world: the PD hold at the default pose (a no-policy baseline)."""
+
+    def __init__(self, num_actions: int) -> None:
+        super().__init__()
+        self.num_actions = num_actions
+        self.in_keys = []
+        self.out_keys = ["action"]
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        td.set("action", torch.zeros(*td.batch_size, self.num_actions, device=td.device))
+        return td
+
+
+def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
+             trails=None) -> HikingEnv:
+    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds)."""
+    cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
+                          categories=tuple(protocol.categories), levels=tuple(protocol.levels),
+                          variants=variants, seed=seed, num_threads=num_threads)
+    return HikingEnv(cfg, trails=trails)
+
+
+def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2, seed: int = 0,
+                num_threads=None, trails=None):
+    """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline.
+
+    Raises:
+        FileNotFoundError: no checkpoint at the path.
+        ValueError: the checkpoint's kind is unknown, or it was made for another robot or
+            observation layout than its eval env.
+    """
+    if checkpoint == "zero":
+        env = eval_env(robot, protocol, variants, seed, num_threads, trails=trails)
+        return env, ZeroPolicy(env.A), "zero-action"
+    state = load_checkpoint(checkpoint)
+    meta = state.get("meta", {})
+    kind = meta.get("kind")
+    if kind == "oracle":
+        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails)
+        check_meta(meta, policy_meta(env, "oracle"), checkpoint)
+        networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
+        networks.load_state_dict(state["networks"])
+        return env, make_oracle_actor(networks), "oracle"
+    if kind == "student":
+        from legoh_rl.training.student import load_student
+
+        return load_student(state, protocol, variants, seed, num_threads, trails=trails, path=checkpoint)
+    raise ValueError(f"{checkpoint}: unknown checkpoint kind {kind!r}; expected 'oracle' or 'student'")

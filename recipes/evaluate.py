@@ -1,0 +1,104 @@
+"""The humanoid hiking benchmark: a checkpoint on the categories x levels protocol.
+
+Prints the six metrics as mean +- std per category and overall (markdown and CSV), saves a plot
+of torso trajectories over the trails coloured by time and a short video of a few robots, and
+logs all of it to wandb (offline by default).
+
+    python recipes/evaluate.py checkpoint=outputs/oracle_h1/last.pt
+    python recipes/evaluate.py checkpoint=outputs/oracle_h1/last.pt protocol=paper
+    python recipes/evaluate.py checkpoint=zero robot=g1       # PD-hold baseline, no policy
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported: off-screen rendering
+
+from pathlib import Path  # noqa: E402
+
+import hydra  # noqa: E402
+import torch  # noqa: E402
+from omegaconf import DictConfig, OmegaConf  # noqa: E402
+
+from legoh_rl.training.evaluation import (  # noqa: E402
+    EvalProtocol,
+    aggregate,
+    markdown_table,
+    plot_trajectories,
+    render_video,
+    run_protocol,
+    write_csv,
+)
+from legoh_rl.training.logging import make_logger  # noqa: E402
+from legoh_rl.training.policies import load_policy  # noqa: E402
+
+PAPER_ROBOTS_PER_CELL = 20  # 20 x 25 cells = 500 ~ the paper's 512 robots
+PAPER_RUNS = 5
+
+
+def protocol_of(cfg: DictConfig) -> EvalProtocol:
+    if cfg.protocol not in ("cpu", "paper"):
+        raise ValueError(f"unknown protocol {cfg.protocol!r}; valid: ['cpu', 'paper']")
+    paper = cfg.protocol == "paper"
+    return EvalProtocol(
+        categories=tuple(cfg.categories), levels=tuple(int(v) for v in cfg.levels),
+        robots_per_cell=PAPER_ROBOTS_PER_CELL if paper else int(cfg.robots_per_cell),
+        runs=PAPER_RUNS if paper else int(cfg.runs), seed=int(cfg.seed),
+    )
+
+
+def evaluate(cfg: DictConfig) -> dict:
+    """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
+    if cfg.checkpoint is None:
+        raise ValueError("checkpoint is required: a .pt file from a recipe, or 'zero' for the PD-hold baseline")
+    protocol = protocol_of(cfg)
+    torch.set_num_threads(1)
+    env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
+                                    seed=int(cfg.seed), num_threads=cfg.num_threads)
+    out_dir = Path(cfg.output_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result = run_protocol(env, policy, protocol)
+    rows = aggregate(result.episodes)
+    table = markdown_table(rows)
+    (out_dir / "table.md").write_text(table + "\n")
+    csv_path = write_csv(rows, out_dir / "table.csv")
+    plot = plot_trajectories(env, result, out_dir / "trajectories.png")
+    video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
+    print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
+          f"{len(protocol.categories)} categories x {len(protocol.levels)} levels x {protocol.runs} runs)\n")
+    print(table)
+    logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(out_dir / "logs"), cfg.logger.project,
+                         cfg.logger.online, config=OmegaConf.to_container(cfg, resolve=True))
+    for m, (mean, _) in rows["overall"].items():
+        logger.log_scalar(f"eval/{m}", mean, step=0)
+    _log_media(logger, table, plot, video)
+    artefacts = {"table": str(out_dir / "table.md"), "csv": str(csv_path), "plot": str(plot),
+                 "video": str(video) if video else None}
+    print("\nartefacts:\n" + "\n".join(f"  {k:6} {v}" for k, v in artefacts.items() if v))
+    return {"rows": rows, "episodes": result.episodes, **artefacts}
+
+
+def _log_media(logger, table: str, plot: Path, video: Path | None) -> None:
+    exp = getattr(logger, "experiment", None)
+    if exp is None or not hasattr(exp, "log"):
+        return
+    import wandb
+
+    lines = [ln for ln in table.splitlines() if not ln.startswith("|---")]
+    header = [c.strip() for c in lines[0].strip("|").split("|")]
+    data = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines[1:]]
+    media = {"eval/table": wandb.Table(columns=header, data=data), "eval/trajectories": wandb.Image(str(plot))}
+    if video is not None:
+        media["eval/video"] = wandb.Video(str(video), format="mp4")
+    exp.log(media)
+    exp.finish()
+
+
+@hydra.main(config_path="config", config_name="evaluate", version_base=None)
+def main(cfg: DictConfig) -> None:
+    evaluate(cfg)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,117 @@
+"""Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs."""
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+
+from legoh_rl.training.checkpoint import load_checkpoint
+from legoh_rl.training.evaluation import aggregate, markdown_table
+
+RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+sys.path.insert(0, str(RECIPES))
+
+import evaluate as evaluate_recipe  # noqa: E402
+import oracle_ppo  # noqa: E402
+
+TINY = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1",
+        "collector.steps_per_env=8", "ppo.num_epochs=1", "ppo.num_minibatches=2", "logger.backend=csv"]
+
+
+def cfg_of(name, overrides):
+    with initialize_config_dir(config_dir=str(RECIPES / "config"), version_base=None):
+        return compose(config_name=name, overrides=overrides)
+
+
+def test_oracle_trains_then_resumes_where_it_stopped(tmp_path):
+    ck = tmp_path / "ck"
+    first = oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=64", f"checkpoint.dir={ck}",
+                                                          "checkpoint.every=1"]))
+    assert first["iteration"] == 2 and first["frames"] == 64
+    saved = load_checkpoint(ck / "last.pt")
+    assert saved["iteration"] == 2 and saved["meta"]["robot"] == "h1"
+    assert any((ck / "logs").rglob("*.csv"))
+    # "interrupted": continue the same run to 96 frames; state restored exactly first
+    cfg = cfg_of("oracle_ppo", TINY + ["collector.total_frames=96", f"checkpoint.dir={ck}", "checkpoint.resume=auto"])
+    parts = oracle_ppo.build(cfg)
+    assert parts["iteration"] == 2 and parts["frames"] == 64
+    for k, v in saved["loss"].items():
+        assert torch.equal(parts["loss"].state_dict()[k], v), k
+    assert (parts["env"].curriculum.levels == saved["env"]["curriculum"]["levels"]).all()
+    second = oracle_ppo.train(cfg, env=parts["env"])
+    assert second["iteration"] == 3 and second["frames"] == 96
+    assert load_checkpoint(ck / "last.pt")["iteration"] == 3
+
+
+@pytest.mark.parametrize("override,message", [
+    ("env.robot=atlas", r"unknown robot 'atlas'"),
+    ("env.categories=[swamp]", r"unknown trail category 'swamp'"),
+    ("env.num_envs=0", r"env.num_envs must be a positive number, got 0"),
+    ("collector.total_frames=0", r"collector.total_frames must be a positive number, got 0"),
+    ("checkpoint.resume=/nonexistent/last.pt", r"no checkpoint at /nonexistent/last.pt"),
+])
+def test_bad_config_values_refused(override, message, tmp_path):
+    with pytest.raises((ValueError, FileNotFoundError), match=message):
+        oracle_ppo.train(cfg_of("oracle_ppo", TINY + [override, f"checkpoint.dir={tmp_path}"]))
+
+
+def test_checkpoint_for_another_robot_refused(tmp_path):
+    ck = tmp_path / "ck"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}"]))
+    cfg = cfg_of("oracle_ppo", TINY + ["env.robot=g1", "collector.total_frames=64", f"checkpoint.dir={ck}",
+                                       "checkpoint.resume=auto"])
+    with pytest.raises(ValueError, match=r"robot: checkpoint has 'h1', this run needs 'g1'"):
+        oracle_ppo.build(cfg)
+
+
+def test_aggregate_matches_hand_computed_values():
+    eps = [
+        # run 0: randommix one success (T2R 5 s) one fall; gap one fall
+        {"run": 0, "category": "randommix", "level": 0, "success": 100.0, "trail_completion": 100.0,
+         "traverse_rate": 100.0, "mev": 2.0, "ttf": 5.0, "time_to_reach": 5.0},
+        {"run": 0, "category": "randommix", "level": 1, "success": 0.0, "trail_completion": 50.0,
+         "traverse_rate": 40.0, "mev": 4.0, "ttf": 3.0, "time_to_reach": math.nan},
+        {"run": 0, "category": "gap", "level": 0, "success": 0.0, "trail_completion": 0.0,
+         "traverse_rate": 10.0, "mev": 6.0, "ttf": 1.0, "time_to_reach": math.nan},
+        # run 1: randommix two successes
+        {"run": 1, "category": "randommix", "level": 0, "success": 100.0, "trail_completion": 100.0,
+         "traverse_rate": 100.0, "mev": 0.0, "ttf": 7.0, "time_to_reach": 7.0},
+        {"run": 1, "category": "randommix", "level": 1, "success": 100.0, "trail_completion": 100.0,
+         "traverse_rate": 100.0, "mev": 0.0, "ttf": 9.0, "time_to_reach": 9.0},
+    ]
+    rows = aggregate(eps)
+    # randommix SR per run: 50, 100 -> mean 75, std 25
+    assert rows["randommix"]["success"] == pytest.approx((75.0, 25.0))
+    # T2R over successes: run 0 -> 5, run 1 -> 8 -> 6.5 +- 1.5
+    assert rows["randommix"]["time_to_reach"] == pytest.approx((6.5, 1.5))
+    # gap only in run 0, never succeeded: T2R undefined
+    assert math.isnan(rows["gap"]["time_to_reach"][0])
+    assert rows["gap"]["ttf"] == pytest.approx((1.0, 0.0))
+    # overall SR: run 0 = 1/3 -> 33.33, run 1 = 100 -> mean 66.67, std 33.33
+    assert rows["overall"]["success"] == pytest.approx((200 / 3, 100 / 3))
+    table = markdown_table(rows)
+    assert "| Success Rate (%) | 0.00 ± 0.00 | 75.00 ± 25.00 | 66.67 ± 33.33 |" in table
+
+
+def test_evaluate_zero_policy_writes_artefacts(tmp_path):
+    cfg = cfg_of("evaluate", ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=2",
+                              "variants=1", "num_threads=1", f"output_dir={tmp_path}", "video_seconds=0.5",
+                              "logger.backend=csv"])
+    out = evaluate_recipe.evaluate(cfg)
+    assert len(out["episodes"]) == 2
+    overall = out["rows"]["overall"]
+    assert overall["success"][0] == 0.0 and math.isnan(overall["time_to_reach"][0])
+    assert 0.5 < overall["ttf"][0] < 4.0  # a PD hold falls within a few seconds (docs/physics.md)
+    for key in ("table", "csv", "plot"):
+        assert Path(out[key]).is_file()
+    if out["video"] is not None:  # needs an OpenGL context (EGL/OSMesa)
+        assert Path(out["video"]).stat().st_size > 1000
+
+
+def test_evaluate_missing_checkpoint(tmp_path):
+    cfg = cfg_of("evaluate", ["checkpoint=/nonexistent.pt", f"output_dir={tmp_path}", "logger.backend=csv"])
+    with pytest.raises(FileNotFoundError, match="checkpoint not found: /nonexistent.pt"):
+        evaluate_recipe.evaluate(cfg)
