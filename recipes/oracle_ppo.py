@@ -88,7 +88,7 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
             for key, value in (("loss/objective", out["loss_objective"]), ("loss/critic", out["loss_critic"]),
                                ("loss/entropy", out["loss_entropy"]), ("train/kl", kl), ("train/grad_norm", grad_norm),
                                ("train/clip_fraction", out.get("clip_fraction", torch.tensor(0.0)))):
-                sums[key] = sums.get(key, 0.0) + float(value)
+                sums[key] = sums.get(key, 0.0) + float(value.detach() if torch.is_tensor(value) else value)
             count += 1
     stats = {k: v / count for k, v in sums.items()}
     stats["train/lr"] = lr

@@ -76,5 +76,6 @@ def make_oracle(env: HikingEnv, init_std: float = 1.0):
 def policy_meta(env: HikingEnv, kind: str) -> dict:
     """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind."""
     spec = env.observation_spec
-    layout = {k: tuple(spec[k].shape[1:]) for k in ("proprio", "privileged", "scandots", "expert_goals")}
+    keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" else ())
+    layout = {k: tuple(spec[k].shape[1:]) for k in keys}
     return {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}

@@ -1,0 +1,79 @@
+"""Distillation pieces of the unified recipe: the frozen teacher and the student's training pass.
+
+Keys follow docs/keys.md. The teacher fills ``z_tea``, ``goals_tea`` and ``action_tea`` (its
+deterministic action, ``loc``) on the same steps the student acted on; the student's pass
+recomputes its perception on those steps (with gradients, holding outputs between perception
+ticks exactly as while acting) and writes its deterministic action under ``loc_uni`` so the
+rollout's ``loc``/``scale`` (needed for PPO's KL) stay untouched.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+
+from legoh_rl.modules.configs import OracleConfig
+from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor, make_oracle_critic
+from legoh_rl.training.checkpoint import load_checkpoint
+
+__all__ = ["Teacher", "student_pass", "STUDENT_ACTION_KEY"]
+
+STUDENT_ACTION_KEY = "loc_uni"
+
+
+class Teacher:
+    """A frozen oracle loaded from an ``oracle_ppo.py`` checkpoint.
+
+    Args:
+        path: the oracle checkpoint.
+        robot: the student's robot (a mismatch is refused).
+
+    Attributes:
+        networks: the oracle's networks (no gradients); ``actor`` its ProbabilisticActor;
+        ``critic_state``: the trained critic's weights, to initialise the student's critic.
+    """
+
+    def __init__(self, path: str, robot: str) -> None:
+        state = load_checkpoint(path)
+        meta = state.get("meta", {})
+        if meta.get("kind") != "oracle":
+            raise ValueError(f"{path}: the teacher must be an oracle checkpoint, got kind {meta.get('kind')!r}")
+        if meta.get("robot") != robot:
+            raise ValueError(f"{path}: robot: checkpoint has {meta.get('robot')!r}, this run needs {robot!r}")
+        self.meta = meta
+        self.networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
+        self.networks.load_state_dict(state["networks"])
+        self.networks.requires_grad_(False)
+        self.networks.eval()
+        self.actor = make_oracle_actor(self.networks)
+        self._net = self.actor.module[0]  # encoders + actor MLP, writes z_tea, loc, scale
+
+    @torch.no_grad()
+    def label(self, td: TensorDictBase) -> TensorDictBase:
+        """Write ``z_tea``, ``goals_tea``, ``action_tea`` for every step of ``td`` (any batch)."""
+        out = self._net(td.select(*self._net.in_keys).copy())
+        td.set("z_tea", out["z_tea"])
+        td.set("action_tea", out["loc"])
+        td.set("goals_tea", td.get("expert_goals"))
+        return td
+
+    def make_critic(self):
+        """A critic with the oracle's architecture and trained weights (asymmetric: it reads the
+        privileged observations, which exist only in simulation, as in the oracle stage)."""
+        networks = OracleNetworks(self.networks.cfg)
+        networks.load_state_dict(self.networks.state_dict())
+        networks.requires_grad_(True)
+        return make_oracle_critic(networks), networks
+
+
+def student_pass(student, td: TensorDictBase) -> TensorDictBase:
+    """Recompute the student's perception (with gradients) and deterministic action on ``td``.
+
+    ``td`` is ``[..., T]`` (time last). Writes ``z_uni``, ``delta_g0``, ``goals_uni``,
+    ``goal_next`` (via :meth:`PerceptionHold.hold_forward`) and ``loc_uni`` (A,).
+    """
+    student.hold.hold_forward(td)
+    net = student.actor.module[0]
+    out = net(td.select(*net.in_keys))
+    td.set(STUDENT_ACTION_KEY, out["loc"])
+    return td

@@ -1,0 +1,246 @@
+"""Train the unified LEGO-H student: TC-ViT + locomotion module, distilled from a frozen oracle.
+
+Paper "Unified Hiking Policy Learning with Vision" and "Hierarchical Latent Matching":
+
+1. DAgger: the student acts; the frozen oracle labels the same steps from the privileged state
+   (``z_tea``, expert goals, its action); the student minimises L_im (Eq. 1).
+2. Then PPO (rewards, with point-navigation distance) + L_im + L_hie (Eqs. 6-9), while the masked
+   VAE keeps training on the teacher's actions (L_rec, Eqs. 2-5) with its own optimiser.
+
+The student perceives at 10 Hz and acts at 50 Hz (PerceptionHold); training recomputes perception
+on the tick steps of each collected sequence so gradients reach TC-ViT exactly as it acted.
+
+    python recipes/unified.py teacher=outputs/oracle_h1/last.pt
+    python recipes/unified.py teacher=... hlm.enabled=false          # ablation "w TC-ViT"
+    python recipes/unified.py teacher=... student.perception=eph     # baseline EP-H
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType
+from tqdm import tqdm
+
+from legoh_rl.modules.masked_vae import MaskedVAEConfig
+from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
+from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
+from legoh_rl.training.builders import make_env, policy_meta, require_positive
+from legoh_rl.training.checkpoint import (
+    check_meta,
+    load_checkpoint,
+    rng_state,
+    save_checkpoint,
+    set_rng_state,
+)
+from legoh_rl.training.distill import STUDENT_ACTION_KEY, Teacher, student_pass
+from legoh_rl.training.logging import make_logger
+from legoh_rl.training.stats import episode_stats, reward_term_stats
+from legoh_rl.training.student import make_student, student_env
+
+PERCEPTIONS = ("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")
+
+
+def validate(cfg: DictConfig) -> None:
+    if cfg.student.perception not in PERCEPTIONS:
+        raise ValueError(f"unknown student.perception {cfg.student.perception!r}; valid: {list(PERCEPTIONS)}")
+    if cfg.teacher is None:
+        raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
+    if not Path(cfg.teacher).is_file():
+        raise FileNotFoundError(f"teacher: no checkpoint at {cfg.teacher}")
+    require_positive("env", cfg.env, "num_envs")
+    require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
+    require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
+    require_positive("checkpoint", cfg.checkpoint, "every")
+    if cfg.ppo.num_minibatches > cfg.env.num_envs:
+        raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
+                         f"({cfg.env.num_envs}): minibatches split the worlds")
+    resume = cfg.checkpoint.resume
+    if resume not in (None, "auto") and not Path(resume).is_file():
+        raise FileNotFoundError(f"checkpoint.resume: no checkpoint at {resume}")
+
+
+def make_losses(student, critic, num_actions: int, cfg: DictConfig):
+    ppo_cfg = PPOConfig(clip_epsilon=cfg.ppo.clip_epsilon, entropy_coeff=cfg.ppo.entropy_coeff, gamma=cfg.ppo.gamma,
+                        lmbda=cfg.ppo.lmbda, learning_rate=cfg.ppo.learning_rate, desired_kl=cfg.ppo.desired_kl)
+    ppo, gae = make_ppo_loss(student.actor, critic, ppo_cfg)
+    dagger = DAggerLoss(w1=cfg.imitation.w1, w2=cfg.imitation.w2, w3=cfg.imitation.w3)
+    dagger.set_keys(action_uni=STUDENT_ACTION_KEY)
+    h = cfg.hlm
+    mask_ratio = 0.0 if h.vanilla_vae else h.mask_ratio
+    vae = MaskedVAELoss(MaskedVAEConfig(action_dim=num_actions), w4=h.w4, w5=h.w5,
+                        w6=0.0 if h.vanilla_vae else h.w6, mask_ratio=mask_ratio, seed=int(cfg.env.seed))
+    hlm = HLMLoss(vae, w7=h.w7, w8=0.0 if h.vanilla_vae else h.w8, c_mt=h.c_mt, c_ms=h.c_ms,
+                  mask_ratio=mask_ratio, seed=int(cfg.env.seed) + 1)
+    hlm.set_keys(action_uni=STUDENT_ACTION_KEY)
+    return ppo, gae, dagger, vae, hlm
+
+
+def build(cfg: DictConfig) -> dict:
+    """Teacher, env, student, critic, losses, optimisers and counters (restored on resume)."""
+    validate(cfg)
+    torch.set_num_threads(int(cfg.torch_threads))
+    torch.manual_seed(int(cfg.env.seed))
+    teacher = Teacher(cfg.teacher, cfg.env.robot)
+    base = make_env(cfg.env, mode="student")
+    student = make_student(base, cfg.student.perception, cfg.student.preset)
+    env = student_env(base, student)
+    critic, critic_nets = teacher.make_critic()
+    ppo, gae, dagger, vae, hlm = make_losses(student, critic, base.A, cfg)
+    params = list(student.perception.parameters()) + list(student.actor.parameters()) + list(critic.parameters())
+    optim = torch.optim.Adam(params, lr=cfg.ppo.learning_rate)
+    sched = AdaptiveKLScheduler(optim, cfg.ppo.desired_kl, max_lr=max(cfg.ppo.learning_rate, 1e-2))
+    vae_optim = torch.optim.Adam(vae.parameters(), lr=cfg.hlm.vae_lr)
+    meta = {**policy_meta(base, "student"), "perception": cfg.student.perception, "preset": cfg.student.preset}
+    p = dict(teacher=teacher, base=base, env=env, student=student, critic=critic, critic_nets=critic_nets, ppo=ppo,
+             gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim, sched=sched, vae_optim=vae_optim, meta=meta,
+             iteration=0, frames=0, run_id=None)
+    path = _resume_path(cfg)
+    if path is not None:
+        state = load_checkpoint(path)
+        check_meta(state["meta"], meta, path)
+        for key in ("optim", "sched", "vae_optim"):
+            p[key].load_state_dict(state[key])
+        student.perception.load_state_dict(state["perception"])
+        student.actor.load_state_dict(state["actor"])
+        critic_nets.load_state_dict(state["critic"])
+        vae.load_state_dict(state["vae"])
+        base.load_state_dict(state["env"])
+        set_rng_state(state["rng"])
+        p.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
+        print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
+    return p
+
+
+def _resume_path(cfg: DictConfig) -> Path | None:
+    resume = cfg.checkpoint.resume
+    if resume == "auto":
+        last = Path(cfg.checkpoint.dir) / "last.pt"
+        return last if last.is_file() else None
+    return None if resume is None else Path(resume)
+
+
+def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
+    """One training step on a collected ``[N, T]`` batch; returns mean diagnostics."""
+    teacher, student, ppo, gae, dagger, vae, hlm = (p[k] for k in ("teacher", "student", "ppo", "gae", "dagger",
+                                                                    "vae", "hlm"))
+    teacher.label(data)
+    stats: dict[str, float] = {}
+
+    def add(key: str, value) -> None:
+        stats[key] = stats.get(key, 0.0) + float(value.detach() if torch.is_tensor(value) else value)
+
+    # masked VAE on the teacher's actions (L_rec), its own optimiser
+    flat = data.reshape(-1)
+    for _ in range(cfg.hlm.vae_steps if cfg.hlm.enabled else 0):
+        out = vae(flat[torch.randperm(flat.shape[0])[: min(2048, flat.shape[0])]])
+        loss = sum(v for k, v in out.items() if k.startswith("loss_"))
+        p["vae_optim"].zero_grad()
+        loss.backward()
+        p["vae_optim"].step()
+        add("vae/loss", loss / cfg.hlm.vae_steps)
+    rl = iteration >= cfg.dagger_iters
+    use_hlm = cfg.hlm.enabled and iteration >= cfg.hlm.warmup_iters
+    if rl:
+        with torch.no_grad():
+            gae(data)
+    n_mb = 0
+    params = [q for g in p["optim"].param_groups for q in g["params"]]
+    for _ in range(cfg.ppo.num_epochs if rl else 1):
+        for idx in torch.randperm(data.shape[0]).chunk(cfg.ppo.num_minibatches):
+            mb = data[idx].clone(False)
+            student_pass(p["student"], mb)
+            terms = {k: v for k, v in dagger(mb).items() if k.startswith("loss_")}
+            if use_hlm:
+                terms.update({k: v for k, v in hlm(mb).items() if k.startswith("loss_")})
+            if rl:
+                out = ppo(mb)
+                for k in ("loss_objective", "loss_critic", "loss_entropy"):
+                    terms[k] = cfg.ppo.weight * out[k]
+            total = sum(terms.values())
+            p["optim"].zero_grad()
+            total.backward()
+            torch.nn.utils.clip_grad_norm_(params, cfg.ppo.max_grad_norm)
+            p["optim"].step()
+            if rl:
+                with torch.no_grad():
+                    add("train/kl", policy_kl(p["student"].actor, mb))
+            for k, v in terms.items():
+                add(f"loss/{k[5:]}", v)
+            n_mb += 1
+    stats = {k: v / n_mb if not k.startswith("vae/") else v for k, v in stats.items()}
+    if rl:
+        stats["train/lr"] = p["sched"].step(stats["train/kl"])
+    stats["train/phase_rl"] = float(rl)
+    stats["train/hlm_on"] = float(use_hlm)
+    return stats
+
+
+def train(cfg: DictConfig) -> dict:
+    """Run the unified training described by ``cfg``; returns a summary of the last iteration."""
+    p = build(cfg)
+    base, env, student = p["base"], p["env"], p["student"]
+    iteration, frames = p["iteration"], p["frames"]
+    ckpt_dir = Path(cfg.checkpoint.dir)
+    logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
+                         cfg.logger.online, p["run_id"], OmegaConf.to_container(cfg, resolve=True))
+    run_id = getattr(getattr(logger, "experiment", None), "id", p["run_id"])
+    fpb = cfg.env.num_envs * cfg.collector.steps_per_env
+    remaining = int(cfg.collector.total_frames) - frames
+    if remaining < fpb:
+        print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
+        return {"iteration": iteration, "frames": frames}
+    collector = Collector(env, student.policy, frames_per_batch=fpb, total_frames=remaining,
+                          exploration_type=ExplorationType.RANDOM)
+
+    def checkpoint() -> Path:
+        return save_checkpoint(ckpt_dir / "last.pt", {
+            "meta": p["meta"], "perception": student.perception.state_dict(), "actor": student.actor.state_dict(),
+            "critic": p["critic_nets"].state_dict(), "vae": p["vae"].state_dict(), "optim": p["optim"].state_dict(),
+            "sched": p["sched"].state_dict(), "vae_optim": p["vae_optim"].state_dict(), "env": base.state_dict(),
+            "rng": rng_state(), "iteration": iteration, "frames": frames, "run_id": run_id,
+            "teacher": str(cfg.teacher), "config": OmegaConf.to_container(cfg, resolve=True),
+        })
+
+    summary: dict = {}
+    start = time.perf_counter()
+    bar = tqdm(total=remaining, unit="frames", desc=f"unified ({cfg.student.perception})")
+    for data in collector:
+        stats = update(p, data, iteration, cfg)
+        collector.update_policy_weights_()
+        iteration += 1
+        frames += data.numel()
+        bar.update(data.numel())
+        stats.update(reward_term_stats(data))
+        stats.update(episode_stats(data))
+        stats.update({"train/frames": frames, "train/fps_total": (frames - p["frames"]) / (time.perf_counter() - start),
+                      "curriculum/mean_level": float(base.curriculum.levels.mean())})
+        if iteration % cfg.logger.log_every == 0:
+            for key, value in stats.items():
+                logger.log_scalar(key, value, step=frames)
+        bar.set_postfix(im=f"{stats.get('loss/im_action', float('nan')):.3f}", sr=f"{stats.get('episode/success', float('nan')):.0f}")
+        if iteration % cfg.checkpoint.every == 0:
+            checkpoint()
+        summary = {"iteration": iteration, "frames": frames, **stats}
+    bar.close()
+    collector.shutdown()
+    summary["checkpoint"] = str(checkpoint())
+    if hasattr(logger, "experiment") and hasattr(logger.experiment, "finish"):
+        logger.experiment.finish()
+    return summary
+
+
+@hydra.main(config_path="config", config_name="unified", version_base=None)
+def main(cfg: DictConfig) -> None:
+    summary = train(cfg)
+    print(f"done: {summary.get('iteration')} iterations, {summary.get('frames')} frames; "
+          f"checkpoint {summary.get('checkpoint')}")
+
+
+if __name__ == "__main__":
+    main()
