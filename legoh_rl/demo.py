@@ -1,57 +1,76 @@
-"""`make demo`: the project's main job on embedded defaults (CPU, wandb offline).
+"""`make demo`: the project's main job on embedded defaults (CPU, wandb offline), a few minutes.
 
-Until the training recipes land, it is a smoke run of the batched physics: both robots, 64
-worlds, 2 s of zero action (PD hold at the default pose) on rough ground with obstacles. It
-prints the control-step throughput and when each robot falls (a pure PD hold does not balance a
-humanoid: balancing is the policy's job).
+1. a short oracle PPO training (H1, easy RandomMix trails) through ``recipes/oracle_ppo.py``,
+   logged to an offline wandb run;
+2. the benchmark (``recipes/evaluate.py``) on easy trails: the metrics table (markdown + CSV),
+   the torso-trajectory plot and a video of four robots. It evaluates the committed trained
+   oracle (``checkpoints/oracle_h1.pt``) when the repository has one, else the checkpoint the
+   short training just wrote;
+3. a list of where every artefact is.
 """
 
 from __future__ import annotations
 
-import time
+import os
 
-import numpy as np
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.setdefault("WANDB_MODE", "offline")
 
-from legoh_rl.envs.physics import BatchedWorlds
-from legoh_rl.envs.robots import build_model
-from legoh_rl.envs.rough_patch import RoughPatch
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+RECIPES = ROOT / "recipes"
+COMMITTED_ORACLE = ROOT / "checkpoints" / "oracle_h1.pt"
+OUT = Path(os.environ.get("LEGOH_DEMO_OUT", "outputs/demo"))
 
 
-def physics_smoke(robot: str, num_worlds: int = 64, seconds: float = 2.5) -> None:
-    """Step ``num_worlds`` worlds of ``robot`` with the default-pose PD hold and report."""
-    built = build_model(robot, terrain=RoughPatch(num_boxes=50))
-    worlds = BatchedWorlds(built, num_worlds)
-    rng = np.random.default_rng(0)
-    qpos = np.tile(built.default_qpos, (num_worlds, 1))
-    qpos[:, :2] = rng.uniform(-1.0, 1.0, size=(num_worlds, 2))  # spread the robots on the patch
-    qpos[:, 2] += 0.1
-    worlds.reset(qpos=qpos)
-    targets = np.tile(np.array(built.robot.default_joint_pos), (num_worlds, 1))
-    fall_time = np.full(num_worlds, np.nan)
-    steps = int(seconds / worlds.dt)
-    start = time.perf_counter()
-    for k in range(steps):
-        worlds.set_joint_targets(targets)
-        worlds.step()
-        fallen = np.isnan(fall_time) & (worlds.qpos[:, 2] < 0.6 * built.robot.spawn_height)
-        fall_time[fallen] = (k + 1) * worlds.dt
-    elapsed = time.perf_counter() - start
-    print(
-        f"[{robot}] {num_worlds} worlds x {steps} control steps ({worlds.dt * 1000:.0f} ms each) in "
-        f"{elapsed:.2f} s = {num_worlds * steps / elapsed:,.0f} control steps/s on "
-        f"{worlds.num_threads} threads; diverged worlds: {worlds.diverged_total}"
-    )
-    fell = ~np.isnan(fall_time)
-    print(
-        f"[{robot}] PD hold, zero action: {fell.sum()}/{num_worlds} robots fell within {seconds} s"
-        + (f", median time to fall {np.nanmedian(fall_time):.2f} s" if fell.any() else "")
-    )
+def _compose(name: str, overrides: list[str]):
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(RECIPES / "config"), version_base=None):
+        return compose(config_name=name, overrides=overrides)
 
 
 def main() -> None:
-    print("legoh-rl demo: batched MuJoCo physics smoke (training recipes: see README)")
-    for robot in ("h1", "g1"):
-        physics_smoke(robot)
+    sys.path.insert(0, str(RECIPES))
+    import evaluate as evaluate_recipe
+    import oracle_ppo
+
+    start = time.perf_counter()
+    print("legoh-rl demo: (1) short oracle PPO training on easy trails, (2) the hiking benchmark\n")
+    train_dir = OUT / "oracle_h1"
+    summary = oracle_ppo.train(_compose("oracle_ppo", [
+        "env.robot=h1", "env.num_envs=64", "env.categories=[randommix]", "env.variants=2",
+        "collector.steps_per_env=24", "collector.total_frames=30720", f"checkpoint.dir={train_dir}",
+        "checkpoint.every=5", "logger.exp_name=demo_oracle_h1",
+    ]))
+    trained = Path(summary["checkpoint"])
+    print(f"\ntrained {summary['iteration']} PPO iterations ({summary['frames']} env steps): "
+          f"mean reward/step {summary.get('reward/total', float('nan')):.3f}")
+    policy = COMMITTED_ORACLE if COMMITTED_ORACLE.is_file() else trained
+    which = "the committed trained oracle" if policy == COMMITTED_ORACLE else "the checkpoint just trained"
+    print(f"\nevaluating {which}: {policy}")
+    eval_dir = OUT / "eval"
+    result = evaluate_recipe.evaluate(_compose("evaluate", [
+        f"checkpoint={policy}", "categories=[randommix,ditch]", "levels=[0,1]", "robots_per_cell=4",
+        f"output_dir={eval_dir}", "video_seconds=6", "logger.exp_name=demo_eval",
+    ]))
+    wandb_runs = sorted(str(p) for p in OUT.rglob("offline-run-*") if p.is_dir())
+    print(f"\ndemo finished in {time.perf_counter() - start:.0f} s. Artefacts:")
+    rows = [
+        ("training checkpoint", str(trained)),
+        ("evaluated policy", str(policy)),
+        ("metrics table", result["table"]),
+        ("metrics CSV", result["csv"]),
+        ("trajectory plot", result["plot"]),
+        ("video", result["video"] or "(skipped: no OpenGL context for MuJoCo rendering)"),
+    ] + [("wandb offline run", run) for run in wandb_runs]
+    for name, path in rows:
+        print(f"  {name:20} {path}")
+    if wandb_runs:
+        print("\nsync the wandb runs later with:  wandb sync " + " ".join(wandb_runs))
 
 
 if __name__ == "__main__":
