@@ -31,7 +31,7 @@ from legoh_rl.training.checkpoint import (
     save_checkpoint,
     set_rng_state,
 )
-from legoh_rl.training.logging import make_logger
+from legoh_rl.training.logging import MetricsFile, make_logger
 from legoh_rl.training.stats import episode_stats, reward_term_stats
 
 
@@ -130,6 +130,7 @@ def train(cfg: DictConfig, env=None) -> dict:
 
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
                          cfg.logger.online, run_id, OmegaConf.to_container(cfg, resolve=True))
+    metrics_file = MetricsFile(ckpt_dir / "metrics.jsonl")
     run_id = getattr(getattr(logger, "experiment", None), "id", run_id)
     n = cfg.env.num_envs
     frames_per_batch = n * cfg.collector.steps_per_env
@@ -168,6 +169,7 @@ def train(cfg: DictConfig, env=None) -> dict:
         if iteration % cfg.logger.log_every == 0:
             for key, value in stats.items():
                 logger.log_scalar(key, value, step=frames)
+            metrics_file.write(frames, stats)
         bar.set_postfix(reward=f"{stats['reward/total']:.3f}", level=f"{stats['curriculum/mean_level']:.2f}",
                         sr=f"{stats.get('episode/success', float('nan')):.0f}")
         if iteration % cfg.checkpoint.every == 0:

@@ -39,7 +39,7 @@ from legoh_rl.training.checkpoint import (
     set_rng_state,
 )
 from legoh_rl.training.distill import STUDENT_ACTION_KEY, Teacher, student_pass
-from legoh_rl.training.logging import make_logger
+from legoh_rl.training.logging import MetricsFile, make_logger
 from legoh_rl.training.stats import episode_stats, reward_term_stats
 from legoh_rl.training.student import make_student, student_env
 
@@ -189,6 +189,7 @@ def train(cfg: DictConfig) -> dict:
     ckpt_dir = Path(cfg.checkpoint.dir)
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
                          cfg.logger.online, p["run_id"], OmegaConf.to_container(cfg, resolve=True))
+    metrics_file = MetricsFile(ckpt_dir / "metrics.jsonl")
     run_id = getattr(getattr(logger, "experiment", None), "id", p["run_id"])
     fpb = cfg.env.num_envs * cfg.collector.steps_per_env
     remaining = int(cfg.collector.total_frames) - frames
@@ -223,6 +224,7 @@ def train(cfg: DictConfig) -> dict:
         if iteration % cfg.logger.log_every == 0:
             for key, value in stats.items():
                 logger.log_scalar(key, value, step=frames)
+            metrics_file.write(frames, stats)
         bar.set_postfix(im=f"{stats.get('loss/im_action', float('nan')):.3f}", sr=f"{stats.get('episode/success', float('nan')):.0f}")
         if iteration % cfg.checkpoint.every == 0:
             checkpoint()

@@ -34,6 +34,11 @@ def test_oracle_trains_then_resumes_where_it_stopped(tmp_path):
     saved = load_checkpoint(ck / "last.pt")
     assert saved["iteration"] == 2 and saved["meta"]["robot"] == "h1"
     assert any((ck / "logs").rglob("*.csv"))
+    import plot_curves
+
+    rows = plot_curves.load(ck / "metrics.jsonl")
+    assert [r["step"] for r in rows] == [32, 64] and "reward/total" in rows[0]
+    assert plot_curves.plot(rows, tmp_path / "curves.png", "tiny").stat().st_size > 1000
     # "interrupted": continue the same run to 96 frames; state restored exactly first
     cfg = cfg_of("oracle_ppo", TINY + ["collector.total_frames=96", f"checkpoint.dir={ck}", "checkpoint.resume=auto"])
     parts = oracle_ppo.build(cfg)

@@ -7,7 +7,7 @@ import warnings
 
 from torchrl.record.loggers import CSVLogger, Logger
 
-__all__ = ["make_logger"]
+__all__ = ["make_logger", "MetricsFile"]
 
 
 def make_logger(
@@ -46,3 +46,27 @@ def make_logger(
         except Exception as err:  # wandb missing, broken, or refused: keep training, log to CSV
             warnings.warn(f"wandb unusable ({type(err).__name__}: {err}); logging to CSV in {log_dir}", stacklevel=2)
     return CSVLogger(exp_name=exp_name, log_dir=log_dir)
+
+
+class MetricsFile:
+    """Appends one JSON line of scalars per iteration to ``path`` (``metrics.jsonl``).
+
+    Kept beside the wandb/CSV logs so learning curves can be plotted without any service
+    (``python recipes/plot_curves.py run_dir``).
+    """
+
+    def __init__(self, path: str | os.PathLike) -> None:
+        self.path = os.fspath(path)
+        os.makedirs(os.path.dirname(self.path) or ".", exist_ok=True)
+
+    def write(self, step: int, scalars: dict) -> None:
+        """Append ``{"step": step, **scalars}`` (non-finite values written as null)."""
+        import json
+        import math
+
+        row = {"step": int(step)}
+        for k, v in scalars.items():
+            v = float(v)
+            row[k] = v if math.isfinite(v) else None
+        with open(self.path, "a") as f:
+            f.write(json.dumps(row) + "\n")
