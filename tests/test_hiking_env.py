@@ -258,6 +258,6 @@ def test_only_positive_rewards_clips_the_total_not_the_terms():
         env.reset()
         nxt = act(env, 2.0 * torch.ones(2, env.A))  # a violent step: penalties dominate
         terms = sum(v for v in nxt["reward_terms"].values())
-        expect = terms.clamp_min(0.0) if clip else terms
+        expect = terms.clamp_min(0.0) if clip else terms  # no termination term by default
         torch.testing.assert_close(nxt["reward"], expect, rtol=1e-5, atol=1e-6)
         assert (terms < 0).any()

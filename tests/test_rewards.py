@@ -34,7 +34,20 @@ def state(**kw):
 
 
 def test_every_paper_term_has_a_function():
-    assert set(PAPER_WEIGHTS) == set(REWARD_FUNCTIONS)
+    assert set(PAPER_WEIGHTS) | {"alive", "termination"} == set(REWARD_FUNCTIONS)
+    assert "alive" not in reward_weights() and "termination" not in reward_weights()  # off by default
+
+
+def test_termination_added_after_the_positive_clip():
+    s = state(lin_vel_w=np.array([[0, 0, 0.5], [0, 0, 0]]), fell=np.array([True, False]))
+    w = {"lin_vel_z": -2.0, "alive": 1.0, "termination": -100.0}
+    total, terms = compute_rewards(s, w, only_positive=True)
+    # world 0: -0.01 + 0.02 = 0.01 (kept), then -2.0 for the fall; world 1: 0.02
+    np.testing.assert_allclose(terms["termination"], [-2.0, 0.0])
+    np.testing.assert_allclose(total, [0.01 - 2.0, 0.02])
+    w2 = {"lin_vel_z": -20.0}
+    total2, _ = compute_rewards(s, w2, only_positive=True)
+    np.testing.assert_allclose(total2, [0.0, 0.0])  # -0.2 clipped to 0
 
 
 def test_tracking_goal_velocity():

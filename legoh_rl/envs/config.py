@@ -44,7 +44,8 @@ class HikingEnvConfig:
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
-            to end its episode). The logged terms are left unclipped.
+            to end its episode). The logged terms are left unclipped; ``termination`` is added
+            after the clip.
         domain_rand, curriculum: see their modules.
         trail_tile_size: (length, width) of a trail tile, m (passed to the trail grid).
         seed: seeds the trails, spawns, randomisation and noise.

@@ -272,16 +272,16 @@ class HikingEnv(EnvBase):
 
         state = self._read_state()
         self._advance_goals(state)
-        total, terms = compute_rewards(self._reward_state(state), self.weights)
-        if self.cfg.only_positive_rewards:
-            total = np.maximum(total, 0.0)
-        self.metrics.record_step(state["contact"], state["foot_on_edge"])
-
         fell = (
             (np.abs(state["roll"]) > self.cfg.fall_roll_pitch)
             | (np.abs(state["pitch"]) > self.cfg.fall_roll_pitch)
             | (state["base_height"] < self.cfg.fall_height_ratio * self.robot.base_height_target)
         ) & ~diverged
+        reward_state = self._reward_state(state)
+        reward_state.fell = fell
+        total, terms = compute_rewards(reward_state, self.weights, self.cfg.only_positive_rewards)
+        self.metrics.record_step(state["contact"], state["foot_on_edge"])
+
         success = (state["goal_dist"] < self.cfg.reach_radius) & ~diverged & ~fell
         terminated = fell | success
         truncated = ((self.episode_step >= self.max_steps) | diverged) & ~terminated

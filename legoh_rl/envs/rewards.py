@@ -22,7 +22,15 @@ Conventions (N worlds, A leg joints):
   (N, 2) bool, feet touching down this step; ``feet_at_edge`` (N, 2) bool, feet in contact on an
   edge cell; ``terrain_level`` (N,) int;
 * ``base_height`` (N,) pelvis height above the terrain under it, ``base_height_target`` float;
-* ``goal_dist`` (N,) distance to the trail end P_B; ``reach_radius`` float.
+* ``goal_dist`` (N,) distance to the trail end P_B; ``reach_radius`` float;
+* ``fell`` (N,) bool, the episode ends by a fall at this step.
+
+Beyond the paper's table, two "basic elements" of the legged_gym family (the paper adds basic
+terms from Extreme Parkour and Humanoid-Gym without listing them) are available with weight 0
+by default: ``alive`` (+1 per step) and ``termination`` (1 on a fall). The oracle recipe turns
+them on: without a survival signal a humanoid learning from scratch first finds the "dive
+forward" optimum (a few steps of goal-velocity reward, then a fall). Like legged_gym,
+``termination`` is added after the ``only_positive_rewards`` clip so that it is never clipped away.
 """
 
 from __future__ import annotations
@@ -37,6 +45,7 @@ __all__ = [
     "STUDENT_ONLY",
     "REWARD_FUNCTIONS",
     "reward_weights",
+    "EXTRA_WEIGHTS",
     "compute_rewards",
 ]
 
@@ -74,6 +83,7 @@ class RewardState:
     goal_dist: np.ndarray
     reach_radius: float
     dt: float
+    fell: np.ndarray | None = None
 
 
 def reward_tracking_goal_vel(s: RewardState) -> np.ndarray:
@@ -173,6 +183,16 @@ def reward_dof_pos_limits(s: RewardState) -> np.ndarray:
     return np.sum(low + up, axis=1)
 
 
+def reward_alive(s: RewardState) -> np.ndarray:
+    """1 per step (not in the paper's table; weight 0 unless set)."""
+    return np.ones(s.q.shape[0])
+
+
+def reward_termination(s: RewardState) -> np.ndarray:
+    """1 when the episode ends by a fall (not in the paper's table; weight 0 unless set)."""
+    return np.zeros(s.q.shape[0]) if s.fell is None else s.fell.astype(np.float64)
+
+
 REWARD_FUNCTIONS = {
     name[len("reward_") :]: fn for name, fn in list(globals().items()) if name.startswith("reward_") and callable(fn)
 }
@@ -201,6 +221,10 @@ PAPER_WEIGHTS: dict[str, float] = {
     "dof_pos_limits": 0.0,
 }
 STUDENT_ONLY = frozenset({"pn_distance"})
+# legged_gym "basic elements", not in the paper's table: off unless a recipe sets them
+EXTRA_WEIGHTS: dict[str, float] = {"alive": 0.0, "termination": 0.0}
+# added after the only_positive_rewards clip
+AFTER_CLIP = frozenset({"termination"})
 
 
 def reward_weights(
@@ -216,6 +240,7 @@ def reward_weights(
         ValueError: an override names an unknown term (the message lists the known ones).
     """
     weights = dict(PAPER_WEIGHTS)
+    weights.update(EXTRA_WEIGHTS)
     weights.update(robot_weights or {})
     for name, value in (overrides or {}).items():
         if name not in REWARD_FUNCTIONS:
@@ -227,17 +252,24 @@ def reward_weights(
     return {k: v for k, v in weights.items() if v != 0.0}
 
 
-def compute_rewards(s: RewardState, weights: dict[str, float]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def compute_rewards(
+    s: RewardState, weights: dict[str, float], only_positive: bool = False
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Weighted terms and their sum.
 
     Args:
         s: the batched state.
         weights: term name -> weight (see :func:`reward_weights`).
+        only_positive: clip the sum at 0, then add the :data:`AFTER_CLIP` terms.
 
     Returns:
         total: (N,) sum of ``weight * term * dt``;
         terms: name -> (N,) ``weight * term * dt``.
     """
     terms = {name: w * s.dt * REWARD_FUNCTIONS[name](s) for name, w in weights.items()}
-    total = np.sum(list(terms.values()), axis=0) if terms else np.zeros(s.q.shape[0])
+    zero = np.zeros(s.q.shape[0])
+    total = zero + sum((v for k, v in terms.items() if k not in AFTER_CLIP), zero)
+    if only_positive:
+        total = np.maximum(total, 0.0)
+    total = total + sum((v for k, v in terms.items() if k in AFTER_CLIP), zero)
     return total, terms

@@ -38,6 +38,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         seed=int(cfg.get("seed", 0)),
         episode_length_s=float(cfg.get("episode_length_s", 20.0)),
         cmd_speed=float(cfg.get("cmd_speed", 0.8)),
+        reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
     )
     if not cfg.get("domain_rand", True):
         kwargs["domain_rand"] = DomainRandConfig.off()
