@@ -27,12 +27,12 @@ from legoh_rl.training.builders import make_env, make_oracle, policy_meta, requi
 from legoh_rl.training.checkpoint import (
     check_meta,
     load_checkpoint,
+    resume_path,
     rng_state,
     save_checkpoint,
     set_rng_state,
 )
-from legoh_rl.training.logging import MetricsFile, make_logger
-from legoh_rl.training.stats import episode_stats, reward_term_stats
+from legoh_rl.training.run_log import RunLog
 
 
 def make_ppo(actor, critic, cfg: DictConfig):
@@ -52,19 +52,7 @@ def validate(cfg: DictConfig) -> None:
     require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
     require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
     require_positive("checkpoint", cfg.checkpoint, "every")
-    resume = cfg.checkpoint.resume
-    if resume not in (None, "auto") and not Path(resume).is_file():
-        raise FileNotFoundError(f"checkpoint.resume: no checkpoint at {resume}")
-
-
-def resume_path(cfg: DictConfig) -> Path | None:
-    resume = cfg.checkpoint.resume
-    if resume is None:
-        return None
-    if resume == "auto":
-        last = Path(cfg.checkpoint.dir) / "last.pt"
-        return last if last.is_file() else None
-    return Path(resume)
+    resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
 
 
 def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
@@ -106,7 +94,7 @@ def build(cfg: DictConfig, env=None) -> dict:
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
     parts = {"env": env, "networks": networks, "actor": actor, "loss": loss, "gae": gae, "optim": optim,
              "sched": sched, "meta": policy_meta(env, "oracle"), "iteration": 0, "frames": 0, "run_id": None}
-    path = resume_path(cfg)
+    path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is not None:
         state = load_checkpoint(path)
         check_meta(state["meta"], parts["meta"], path)
@@ -128,10 +116,7 @@ def train(cfg: DictConfig, env=None) -> dict:
     meta, iteration, frames, run_id = p["meta"], p["iteration"], p["frames"], p["run_id"]
     ckpt_dir = Path(cfg.checkpoint.dir)
 
-    logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
-                         cfg.logger.online, run_id, OmegaConf.to_container(cfg, resolve=True))
-    metrics_file = MetricsFile(ckpt_dir / "metrics.jsonl")
-    run_id = getattr(getattr(logger, "experiment", None), "id", run_id)
+    run = RunLog(cfg, ckpt_dir, run_id, frames)
     n = cfg.env.num_envs
     frames_per_batch = n * cfg.collector.steps_per_env
     remaining = int(cfg.collector.total_frames) - frames
@@ -146,11 +131,10 @@ def train(cfg: DictConfig, env=None) -> dict:
             "meta": meta, "loss": loss.state_dict(), "actor": actor.state_dict(), "networks": networks.state_dict(),
             "oracle_config": networks.cfg.__dict__, "optim": optim.state_dict(), "sched": sched.state_dict(),
             "env": env.state_dict(), "rng": rng_state(), "iteration": iteration, "frames": frames,
-            "run_id": run_id, "config": OmegaConf.to_container(cfg, resolve=True),
+            "run_id": run.run_id, "config": OmegaConf.to_container(cfg, resolve=True),
         })
 
     summary: dict = {}
-    start = time.perf_counter()
     bar = tqdm(total=remaining, unit="frames", desc="oracle PPO")
     for data in collector:
         t_update = time.perf_counter()
@@ -159,17 +143,8 @@ def train(cfg: DictConfig, env=None) -> dict:
         iteration += 1
         frames += data.numel()
         bar.update(data.numel())
-        elapsed = time.perf_counter() - start
-        stats.update(reward_term_stats(data))
-        stats.update(episode_stats(data))
-        stats.update({"train/frames": frames, "train/fps": frames_per_batch / max(time.perf_counter() - t_update + 1e-9, 1e-9),
-                      "train/fps_total": (frames - (int(cfg.collector.total_frames) - remaining)) / elapsed,
-                      "curriculum/mean_level": float(env.curriculum.levels.mean()),
-                      "env/diverged_total": env.diverged_total, "env/bad_action_total": env.bad_action_total})
-        if iteration % cfg.logger.log_every == 0:
-            for key, value in stats.items():
-                logger.log_scalar(key, value, step=frames)
-            metrics_file.write(frames, stats)
+        stats["train/update_s"] = time.perf_counter() - t_update
+        stats = run.log(iteration, frames, data, env, stats)
         bar.set_postfix(reward=f"{stats['reward/total']:.3f}", level=f"{stats['curriculum/mean_level']:.2f}",
                         sr=f"{stats.get('episode/success', float('nan')):.0f}")
         if iteration % cfg.checkpoint.every == 0:
@@ -178,8 +153,7 @@ def train(cfg: DictConfig, env=None) -> dict:
     bar.close()
     collector.shutdown()
     summary["checkpoint"] = str(checkpoint())
-    if hasattr(logger, "experiment") and hasattr(logger.experiment, "finish"):
-        logger.experiment.finish()
+    run.close()
     return summary
 
 

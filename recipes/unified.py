@@ -17,7 +17,6 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import hydra
@@ -34,13 +33,13 @@ from legoh_rl.training.builders import make_env, policy_meta, require_positive
 from legoh_rl.training.checkpoint import (
     check_meta,
     load_checkpoint,
+    resume_path,
     rng_state,
     save_checkpoint,
     set_rng_state,
 )
 from legoh_rl.training.distill import STUDENT_ACTION_KEY, Teacher, student_pass
-from legoh_rl.training.logging import MetricsFile, make_logger
-from legoh_rl.training.stats import episode_stats, reward_term_stats
+from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.student import make_student, student_env
 
 PERCEPTIONS = ("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")
@@ -57,12 +56,10 @@ def validate(cfg: DictConfig) -> None:
     require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
     require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
     require_positive("checkpoint", cfg.checkpoint, "every")
+    resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
                          f"({cfg.env.num_envs}): minibatches split the worlds")
-    resume = cfg.checkpoint.resume
-    if resume not in (None, "auto") and not Path(resume).is_file():
-        raise FileNotFoundError(f"checkpoint.resume: no checkpoint at {resume}")
 
 
 def make_losses(student, critic, num_actions: int, cfg: DictConfig):
@@ -100,7 +97,7 @@ def build(cfg: DictConfig) -> dict:
     p = dict(teacher=teacher, base=base, env=env, student=student, critic=critic, critic_nets=critic_nets, ppo=ppo,
              gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim, sched=sched, vae_optim=vae_optim, meta=meta,
              iteration=0, frames=0, run_id=None)
-    path = _resume_path(cfg)
+    path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is not None:
         state = load_checkpoint(path)
         check_meta(state["meta"], meta, path)
@@ -115,14 +112,6 @@ def build(cfg: DictConfig) -> dict:
         p.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
     return p
-
-
-def _resume_path(cfg: DictConfig) -> Path | None:
-    resume = cfg.checkpoint.resume
-    if resume == "auto":
-        last = Path(cfg.checkpoint.dir) / "last.pt"
-        return last if last.is_file() else None
-    return None if resume is None else Path(resume)
 
 
 def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
@@ -187,10 +176,7 @@ def train(cfg: DictConfig) -> dict:
     base, env, student = p["base"], p["env"], p["student"]
     iteration, frames = p["iteration"], p["frames"]
     ckpt_dir = Path(cfg.checkpoint.dir)
-    logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(ckpt_dir / "logs"), cfg.logger.project,
-                         cfg.logger.online, p["run_id"], OmegaConf.to_container(cfg, resolve=True))
-    metrics_file = MetricsFile(ckpt_dir / "metrics.jsonl")
-    run_id = getattr(getattr(logger, "experiment", None), "id", p["run_id"])
+    run = RunLog(cfg, ckpt_dir, p["run_id"], frames)
     fpb = cfg.env.num_envs * cfg.collector.steps_per_env
     remaining = int(cfg.collector.total_frames) - frames
     if remaining < fpb:
@@ -204,12 +190,11 @@ def train(cfg: DictConfig) -> dict:
             "meta": p["meta"], "perception": student.perception.state_dict(), "actor": student.actor.state_dict(),
             "critic": p["critic_nets"].state_dict(), "vae": p["vae"].state_dict(), "optim": p["optim"].state_dict(),
             "sched": p["sched"].state_dict(), "vae_optim": p["vae_optim"].state_dict(), "env": base.state_dict(),
-            "rng": rng_state(), "iteration": iteration, "frames": frames, "run_id": run_id,
+            "rng": rng_state(), "iteration": iteration, "frames": frames, "run_id": run.run_id,
             "teacher": str(cfg.teacher), "config": OmegaConf.to_container(cfg, resolve=True),
         })
 
     summary: dict = {}
-    start = time.perf_counter()
     bar = tqdm(total=remaining, unit="frames", desc=f"unified ({cfg.student.perception})")
     for data in collector:
         stats = update(p, data, iteration, cfg)
@@ -217,23 +202,16 @@ def train(cfg: DictConfig) -> dict:
         iteration += 1
         frames += data.numel()
         bar.update(data.numel())
-        stats.update(reward_term_stats(data))
-        stats.update(episode_stats(data))
-        stats.update({"train/frames": frames, "train/fps_total": (frames - p["frames"]) / (time.perf_counter() - start),
-                      "curriculum/mean_level": float(base.curriculum.levels.mean())})
-        if iteration % cfg.logger.log_every == 0:
-            for key, value in stats.items():
-                logger.log_scalar(key, value, step=frames)
-            metrics_file.write(frames, stats)
-        bar.set_postfix(im=f"{stats.get('loss/im_action', float('nan')):.3f}", sr=f"{stats.get('episode/success', float('nan')):.0f}")
+        stats = run.log(iteration, frames, data, base, stats)
+        bar.set_postfix(im=f"{stats.get('loss/im_action', float('nan')):.3f}",
+                        sr=f"{stats.get('episode/success', float('nan')):.0f}")
         if iteration % cfg.checkpoint.every == 0:
             checkpoint()
         summary = {"iteration": iteration, "frames": frames, **stats}
     bar.close()
     collector.shutdown()
     summary["checkpoint"] = str(checkpoint())
-    if hasattr(logger, "experiment") and hasattr(logger.experiment, "finish"):
-        logger.experiment.finish()
+    run.close()
     return summary
 
 

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state"]
+__all__ = ["save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path"]
 
 
 def rng_state() -> dict:
@@ -74,3 +74,20 @@ def check_meta(meta: dict, expected: dict, path: str | os.PathLike = "checkpoint
     bad = [f"{k}: checkpoint has {meta.get(k)!r}, this run needs {v!r}" for k, v in expected.items() if meta.get(k) != v]
     if bad:
         raise ValueError(f"{path} does not fit this run: " + "; ".join(bad))
+
+
+def resume_path(resume: str | None, run_dir: str | os.PathLike) -> Path | None:
+    """The checkpoint a run continues from: ``None`` (fresh run), ``"auto"`` (``run_dir/last.pt``
+    if it exists) or a path, which must exist.
+
+    Raises:
+        FileNotFoundError: an explicit path with no checkpoint (the message names it).
+    """
+    if resume is None:
+        return None
+    if resume == "auto":
+        last = Path(run_dir) / "last.pt"
+        return last if last.is_file() else None
+    if not Path(resume).is_file():
+        raise FileNotFoundError(f"checkpoint.resume: no checkpoint at {resume}")
+    return Path(resume)

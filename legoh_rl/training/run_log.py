@@ -1,0 +1,58 @@
+"""Per-iteration bookkeeping shared by the training recipes."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+
+from legoh_rl.training.logging import MetricsFile, make_logger
+from legoh_rl.training.stats import episode_stats, reward_term_stats
+
+__all__ = ["RunLog"]
+
+
+class RunLog:
+    """The logger (wandb offline / CSV) and ``metrics.jsonl`` of one training run.
+
+    Args:
+        cfg: the recipe config (its ``logger`` section; recorded as the run's config).
+        run_dir: the run's checkpoint folder (logs go to ``run_dir/logs``).
+        run_id: the wandb run to continue after a resume.
+        start_frames: frames already done when this process started (for the fps figure).
+    """
+
+    def __init__(self, cfg: DictConfig, run_dir: Path, run_id: str | None, start_frames: int) -> None:
+        lcfg = cfg.logger
+        self.logger = make_logger(lcfg.backend, lcfg.exp_name, str(run_dir / "logs"), lcfg.project, lcfg.online,
+                                  run_id, OmegaConf.to_container(cfg, resolve=True))
+        self.run_id = getattr(getattr(self.logger, "experiment", None), "id", run_id)
+        self.metrics = MetricsFile(run_dir / "metrics.jsonl")
+        self.every = int(lcfg.log_every)
+        self.start_frames = start_frames
+        self.start = time.perf_counter()
+
+    def log(self, iteration: int, frames: int, data: TensorDictBase, env, stats: dict) -> dict:
+        """Add reward-term, episode, curriculum and env figures to ``stats``; log them when due."""
+        stats.update(reward_term_stats(data))
+        stats.update(episode_stats(data))
+        stats.update({
+            "train/frames": frames,
+            "train/fps_total": (frames - self.start_frames) / (time.perf_counter() - self.start),
+            "curriculum/mean_level": float(env.curriculum.levels.mean()),
+            "env/diverged_total": env.diverged_total,
+            "env/bad_action_total": env.bad_action_total,
+        })
+        if iteration % self.every == 0:
+            for key, value in stats.items():
+                self.logger.log_scalar(key, value, step=frames)
+            self.metrics.write(frames, stats)
+        return stats
+
+    def close(self) -> None:
+        """Finish the wandb run (writes its offline files)."""
+        exp = getattr(self.logger, "experiment", None)
+        if exp is not None and hasattr(exp, "finish"):
+            exp.finish()
