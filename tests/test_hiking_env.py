@@ -30,14 +30,14 @@ def quiet(**kw):
 
 
 @pytest.mark.parametrize("robot", ["h1", "g1"])
-@pytest.mark.parametrize("mode", ["oracle", "student"])
+@pytest.mark.parametrize("mode", ["oracle", "student", "eval"])
 def test_check_env_specs(robot, mode):
     env = make(robot, n=2, mode=mode)
     check_env_specs(env, seed=0)
     A = 10 if robot == "h1" else 12
     assert env.action_spec.shape == (2, A)
     assert env.observation_spec["proprio"].shape == (2, 3 + 2 + 3 * A + 2)
-    assert ("depth" in env.observation_spec.keys()) == (mode == "student")
+    assert ("depth" in env.observation_spec.keys()) == (mode != "oracle")
 
 
 def test_partial_reset_isolates_worlds():
