@@ -188,8 +188,8 @@ def march_ground(
     """
     fn = torch_height_fn(ground_fn)
     o = torch.as_tensor(origin, dtype=torch.float32)
-    d = torch.as_tensor(np.ascontiguousarray(dirs), dtype=torch.float32)
-    tm = torch.as_tensor(np.ascontiguousarray(t_max), dtype=torch.float32)
+    d = torch.tensor(np.asarray(dirs, dtype=np.float32))
+    tm = torch.tensor(np.asarray(t_max, dtype=np.float32))  # a copy: t_max may be a read-only view
     n, r, _ = d.shape
     frac = torch.arange(1, samples + 1, dtype=torch.float32) / samples
     t = tm[..., None] * frac  # (n, R, S)
