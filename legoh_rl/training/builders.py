@@ -53,10 +53,13 @@ def make_env(cfg: Mapping, mode: str, trails=None, **overrides) -> HikingEnv:
     return HikingEnv(env_config(cfg, mode, **overrides), trails=trails)
 
 
-def oracle_config(env: HikingEnv, init_std: float = 1.0) -> OracleConfig:
-    """Oracle network sizes read from the env's specs."""
+def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None) -> OracleConfig:
+    """Oracle network sizes read from the env's specs; ``layers`` overrides the actor and critic
+    MLP widths (paper: [512, 256, 128])."""
     spec = env.observation_spec
+    extra = {} if layers is None else {"actor_layers": tuple(layers), "critic_layers": tuple(layers)}
     return OracleConfig(
+        **extra,
         proprio_dim=spec["proprio"].shape[-1],
         num_actions=env.action_spec.shape[-1],
         privileged_dim=spec["privileged"].shape[-1],
@@ -66,9 +69,9 @@ def oracle_config(env: HikingEnv, init_std: float = 1.0) -> OracleConfig:
     )
 
 
-def make_oracle(env: HikingEnv, init_std: float = 1.0):
+def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None):
     """``(networks, actor, critic)`` of the oracle sized for ``env``."""
-    ocfg = oracle_config(env, init_std)
+    ocfg = oracle_config(env, init_std, layers)
     networks = OracleNetworks(ocfg)
     actor, critic = make_oracle_actor_critic(ocfg, networks=networks)
     return networks, actor, critic
