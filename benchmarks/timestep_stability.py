@@ -1,6 +1,6 @@
 """Is dt = 0.005 s x 4 stable for H1 and G1 in MuJoCo, or is 0.002 s x 10 needed?
 
-    python benchmarks/timestep_stability.py [--worlds 64] [--steps 10000]
+    python benchmarks/timestep_stability.py [--worlds 64] [--steps 10000] [--robots h1 g1] [--dts 0.005 0.002]
 
 Runs N worlds for the given number of 50 Hz control steps under random actions (uniform in
 [-1, 1] x action scale around the default pose, redrawn every step, i.e. violent) on rough
@@ -51,9 +51,13 @@ def main() -> None:
     parser.add_argument("--worlds", type=int, default=64)
     parser.add_argument("--steps", type=int, default=10000)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--robots", nargs="+", default=["h1", "g1"])
+    parser.add_argument("--dts", nargs="+", type=float, default=[0.005, 0.002],
+                        help="timesteps to try (0.005 with decimation 4, 0.002 with decimation 10)")
     args = parser.parse_args()
-    for robot in ("h1", "g1"):
-        for dt, dec in ((0.005, 4), (0.002, 10)):
+    for robot in args.robots:
+        for dt in args.dts:
+            dec = int(round(0.02 / dt))
             r = run(robot, dt, dec, args.worlds, args.steps, args.seed)
             print(
                 f"{r['robot']} dt={r['dt']} x{r['decimation']}: {args.worlds} worlds x {args.steps} control steps, "
