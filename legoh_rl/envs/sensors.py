@@ -92,6 +92,7 @@ class DepthCamera:
         surface_fn: Callable[[np.ndarray], np.ndarray],
         ground_fn: Callable[[np.ndarray], np.ndarray],
         rng: np.random.Generator | None = None,
+        z_max: np.ndarray | None = None,
     ) -> np.ndarray:
         """Depth images of worlds ``ids``.
 
@@ -110,6 +111,8 @@ class DepthCamera:
             surface_fn: surface height (ground and obstacle tops), (M, 2) -> (M,).
             ground_fn: bare ground height at world xy points, (M, 2) -> (M,).
             rng: noise generator (needed when noise or dropout is on).
+            z_max: (n,) highest terrain around each camera (optional): rays are marched only
+                from where they descend below it.
 
         Returns:
             (n, 1, H, W) float32 normalised depth in [0, 1].
@@ -121,7 +124,7 @@ class DepthCamera:
         vec = np.einsum("nij,rj->nri", cam_mat, self._dirs_cam)
         t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
         # 1) march every ray against the surface map (ground + rasterised obstacle tops)
-        dist = march_ground(cam_pos, vec, t_max, surface_fn)
+        dist = march_ground(cam_pos, vec, t_max, surface_fn, z_max=z_max)
         # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march
         hit_xy = cam_pos[:, None, :2] + np.where(np.isfinite(dist), dist, 0.0)[..., None] * vec[..., :2]
         flat_xy = torch.as_tensor(hit_xy.reshape(-1, 2), dtype=torch.float32)
@@ -165,14 +168,17 @@ def march_ground(
     dirs: np.ndarray,
     t_max: np.ndarray,
     ground_fn: Callable,
-    samples: int = 24,
+    samples: int = 16,
     refine: int = 3,
+    z_max: np.ndarray | None = None,
 ) -> np.ndarray:
     """First intersection of rays with a height map, vectorised over every ray (torch, float32).
 
-    Each ray ``o + t d`` is sampled at ``samples`` points in (0, t_max]; the first sample below
+    Each ray ``o + t d`` is sampled at ``samples`` points in (t_0, t_max]; the first sample below
     the ground brackets the hit, which ``refine`` regula-falsi steps then locate (exact where the
-    ground is planar between the bracket's ends).
+    ground is planar between the bracket's ends). ``t_0`` is where the ray descends below
+    ``z_max``, the highest terrain it can meet (0 without ``z_max``): skipping the stretch that
+    cannot hit concentrates the samples where hits are.
 
     Args:
         origin: ray origins per world, (n, 3).
@@ -182,6 +188,7 @@ def march_ground(
             see :func:`torch_height_fn`) or a numpy one.
         samples: coarse samples per ray.
         refine: regula-falsi iterations inside the bracket.
+        z_max: (n,) upper bound of the terrain height each world's rays can meet, or None.
 
     Returns:
         (n, R) float64 distance to the hit along each ray; ``inf`` where the ray stays above.
@@ -191,8 +198,15 @@ def march_ground(
     d = torch.tensor(np.asarray(dirs, dtype=np.float32))
     tm = torch.tensor(np.asarray(t_max, dtype=np.float32))  # a copy: t_max may be a read-only view
     n, r, _ = d.shape
+    t0 = torch.zeros_like(tm)
+    if z_max is not None:
+        above = o[:, 2:3] - torch.as_tensor(np.asarray(z_max, dtype=np.float32))[:, None]  # (n, 1)
+        down = d[..., 2] < 0.0
+        t0 = torch.where(down, (above / -d[..., 2].clamp(max=-1e-6)).clamp_min(0.0), t0)
+        t0 = torch.where(~down & (above > 0.0), tm, t0)  # level/upward rays above all terrain: no hit
+        t0 = torch.minimum(t0, tm)
     frac = torch.arange(1, samples + 1, dtype=torch.float32) / samples
-    t = tm[..., None] * frac  # (n, R, S)
+    t = t0[..., None] + (tm - t0)[..., None] * frac  # (n, R, S)
     ox, oy, oz = (o[:, i, None, None] for i in range(3))
     dx, dy, dz = (d[..., i, None] for i in range(3))
     xy = torch.stack([ox + t * dx, oy + t * dy], dim=-1).reshape(-1, 2)
@@ -204,7 +218,10 @@ def march_ground(
     t_hi, f_hi = t.gather(-1, k)[..., 0], f.gather(-1, k)[..., 0]
     prev = (k - 1).clamp_min(0)
     first = k[..., 0] == 0
-    t_lo = torch.where(first, torch.zeros_like(t_hi), t.gather(-1, prev)[..., 0])
+    if z_max is not None:  # at t0 the ray is at (or above) z_max >= terrain: a valid bracket start
+        p0 = o[:, None, :] + t0[..., None] * d
+        z0 = p0[..., 2] - fn(p0[..., :2].reshape(-1, 2)).reshape(n, r)
+    t_lo = torch.where(first, t0, t.gather(-1, prev)[..., 0])
     f_lo = torch.where(first, z0, f.gather(-1, prev)[..., 0])
     o3, d3 = o[:, None, :], d
     for _ in range(refine):

@@ -11,10 +11,14 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 import torch
+from scipy.ndimage import maximum_filter
 
 from legoh_rl.envs.trails import TrailGrid, TrailGridConfig, build_trail_grid, check_category
 
-__all__ = ["GridTrails", "trails_for", "validate_categories"]
+__all__ = ["GridTrails", "trails_for", "validate_categories", "VIEW_RADIUS"]
+
+#: Horizontal reach of the head camera's rays (4 m z-depth at 45 deg pitch, 58 deg fov), m.
+VIEW_RADIUS = 6.0
 
 
 def validate_categories(categories) -> tuple[str, ...]:
@@ -57,6 +61,9 @@ class GridTrails:
         self._sx = 2.0 / ((nx - 1) * tm.resolution)
         self._sy = 2.0 / ((ny - 1) * tm.resolution)
         self._torch_fns()
+        # highest surface within VIEW_RADIUS of every sample: where a camera's rays can first hit
+        cells = 2 * int(np.ceil(VIEW_RADIUS / tm.resolution)) + 1
+        self._zmax = torch.tensor(maximum_filter(tm.surface, size=cells, mode="nearest"), dtype=torch.float32)[None, None]
 
     def add_to_spec(self, spec: mujoco.MjSpec) -> None:
         """Add the grid's heightfield and obstacles to a model spec."""
@@ -93,6 +100,11 @@ class GridTrails:
 
         surface.torch_native = ground.torch_native = True
         self.height_at_t, self.ground_height_at_t = surface, ground
+
+    def max_height_near(self, xy: np.ndarray) -> np.ndarray:
+        """Highest surface within ``VIEW_RADIUS`` (6 m) of world points, (M, 2) -> (M,): no ray
+        from a camera there can hit the terrain above this height (used to skip ray marching)."""
+        return self._sample(self._zmax, xy)
 
     def edge_at(self, xy: np.ndarray) -> np.ndarray:
         """Whether world points lie on an edge cell, (M, 2) -> (M,) bool."""
