@@ -14,7 +14,7 @@ endif
 export WANDB_MODE ?= offline
 export MUJOCO_GL ?= egl
 
-.PHONY: venv demo test lint bench clean
+.PHONY: venv demo test lint bench clean gl
 
 venv: $(STAMP)
 
@@ -25,8 +25,17 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -e '.[dev]'
 	touch $(STAMP)
 
-demo: venv
+demo: venv gl
 	$(PY) -m legoh_rl.demo
+
+# Off-screen OpenGL for MuJoCo's renderer (the evaluation video). Installs Mesa's EGL when it
+# is missing and we may (root with apt); otherwise the demo runs and skips the video.
+gl:
+	@if ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1'; then :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  echo "installing Mesa EGL for off-screen rendering"; \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libegl1 libgl1-mesa-dri >/dev/null; \
+	else echo "note: no libEGL found; the demo will skip its video (install libegl1 + libgl1-mesa-dri)"; fi
 
 test: venv
 	$(PY) -m pytest -q tests
