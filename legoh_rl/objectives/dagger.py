@@ -112,7 +112,7 @@ class DAggerLoss(LossModule):
         return False
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
+        """No value estimator in this loss: nothing to forward (LossModule hook)."""
 
     def _terms(self) -> list[tuple[str, float, NestedKey, NestedKey]]:
         k = self.tensor_keys

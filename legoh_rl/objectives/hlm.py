@@ -141,7 +141,7 @@ class HLMLoss(LossModule):
         return False
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
-        pass
+        """No value estimator in this loss: nothing to forward (LossModule hook)."""
 
     @property
     def in_keys(self) -> list[NestedKey]:
