@@ -125,7 +125,8 @@ def train(cfg: DictConfig, env=None) -> dict:
         print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": iteration, "frames": frames}
     collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=remaining,
-                          exploration_type=ExplorationType.RANDOM)
+                          exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False)  # the oracle is stateless
 
     def checkpoint() -> Path:
         return save_checkpoint(ckpt_dir / "last.pt", {
