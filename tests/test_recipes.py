@@ -116,6 +116,21 @@ def test_evaluate_zero_policy_writes_artefacts(tmp_path):
         assert Path(out["video"]).stat().st_size > 1000
 
 
+def test_exported_policy_is_slim_and_evaluates(tmp_path):
+    from legoh_rl.training.checkpoint import export_policy
+
+    ck = tmp_path / "ck"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}"]))
+    slim = export_policy(ck / "last.pt", tmp_path / "oracle.pt")
+    state = load_checkpoint(slim)
+    assert "optim" not in state and "env" not in state and state["meta"]["kind"] == "oracle"
+    assert slim.stat().st_size < (ck / "last.pt").stat().st_size / 2
+    cfg = cfg_of("evaluate", [f"checkpoint={slim}", "categories=[randommix]", "levels=[0]", "robots_per_cell=1",
+                              "variants=1", "num_threads=1", f"output_dir={tmp_path / 'e'}", "video=false",
+                              "logger.backend=csv"])
+    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 1
+
+
 def test_evaluate_missing_checkpoint(tmp_path):
     cfg = cfg_of("evaluate", ["checkpoint=/nonexistent.pt", f"output_dir={tmp_path}", "logger.backend=csv"])
     with pytest.raises(FileNotFoundError, match="checkpoint not found: /nonexistent.pt"):

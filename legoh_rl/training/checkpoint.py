@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 import torch
 
-__all__ = ["save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path"]
+__all__ = [
+    "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
+]
 
 
 def rng_state() -> dict:
@@ -91,3 +93,17 @@ def resume_path(resume: str | None, run_dir: str | os.PathLike) -> Path | None:
     if not Path(resume).is_file():
         raise FileNotFoundError(f"checkpoint.resume: no checkpoint at {resume}")
     return Path(resume)
+
+
+#: what a policy needs for inference (evaluate.py, the unified recipe's teacher)
+POLICY_KEYS = ("meta", "oracle_config", "networks", "perception", "actor", "config", "iteration", "frames")
+
+
+def export_policy(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
+    """Write a slim copy of a training checkpoint: the policy without optimisers, env or RNG state.
+
+    The result loads wherever the full checkpoint does for inference (``evaluate.py``, or as the
+    teacher of ``unified.py``), and is small enough to commit.
+    """
+    state = load_checkpoint(src)
+    return save_checkpoint(dst, {k: state[k] for k in POLICY_KEYS if k in state})
