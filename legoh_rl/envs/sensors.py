@@ -145,21 +145,29 @@ class DepthCamera:
         return depth.reshape(n, 1, cfg.height, cfg.width).astype(np.float32)
 
     def _exact_on_obstacles(self, batch, cam_pos, vec, t_max, ids, flagged, dist, ground_fn) -> np.ndarray:
-        """Exact distances for the ``flagged`` (n, R) rays; one padded ``Batch.ray`` call."""
-        n = ids.size
-        counts = flagged.sum(axis=1)
-        k = int(counts.max())
-        order = np.argsort(~flagged, axis=1, kind="stable")[:, :k]  # flagged rays first
-        valid = np.arange(k)[None, :] < counts[:, None]
-        sub_vec = np.take_along_axis(vec, order[..., None], axis=1)
-        sub_pnt = np.broadcast_to(cam_pos[:, None, :], sub_vec.shape)
-        obs, _ = batch.ray(sub_pnt, sub_vec, geomgroup=self._obstacle_groups, flg_static=True,
-                           ids=ids.astype(np.int32))
-        ground = march_ground(cam_pos, sub_vec, np.take_along_axis(t_max, order, axis=1), ground_fn)
-        exact = np.minimum(np.where(obs < 0.0, np.inf, obs), ground)
+        """Exact distances for the ``flagged`` (n, R) rays.
+
+        Worlds are grouped by their number of flagged rays into power-of-two buckets; each bucket
+        is one padded ``Batch.ray`` call (at most ~13 calls, never one per world), so a world that
+        faces a forest does not make every other world cast thousands of rays.
+        """
         out = dist.copy()
-        rows = np.repeat(np.arange(n), k).reshape(n, k)
-        out[rows[valid], order[valid]] = exact[valid]
+        counts = flagged.sum(axis=1)
+        worlds = np.flatnonzero(counts)
+        buckets = np.ceil(np.log2(counts[worlds])).astype(np.int64)
+        for b in np.unique(buckets):
+            sel = worlds[buckets == b]
+            k = int(counts[sel].max())
+            order = np.argsort(~flagged[sel], axis=1, kind="stable")[:, :k]  # flagged rays first
+            valid = np.arange(k)[None, :] < counts[sel, None]
+            sub_vec = np.take_along_axis(vec[sel], order[..., None], axis=1)
+            sub_pnt = np.broadcast_to(cam_pos[sel, None, :], sub_vec.shape)
+            obs, _ = batch.ray(sub_pnt, sub_vec, geomgroup=self._obstacle_groups, flg_static=True,
+                               ids=ids[sel].astype(np.int32))
+            ground = march_ground(cam_pos[sel], sub_vec, np.take_along_axis(t_max[sel], order, axis=1), ground_fn)
+            exact = np.minimum(np.where(obs < 0.0, np.inf, obs), ground)
+            rows = np.repeat(sel, k).reshape(sel.size, k)
+            out[rows[valid], order[valid]] = exact[valid]
         return out
 
 
