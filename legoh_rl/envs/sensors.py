@@ -215,10 +215,8 @@ def march_ground(
         t0 = torch.minimum(t0, tm)
     frac = torch.arange(1, samples + 1, dtype=torch.float32) / samples
     t = t0[..., None] + (tm - t0)[..., None] * frac  # (n, R, S)
-    ox, oy, oz = (o[:, i, None, None] for i in range(3))
-    dx, dy, dz = (d[..., i, None] for i in range(3))
-    xy = torch.stack([ox + t * dx, oy + t * dy], dim=-1).reshape(-1, 2)
-    f = oz + t * dz - fn(xy).reshape(n, r, samples)
+    xy = torch.addcmul(o[:, None, None, :2], t[..., None], d[:, :, None, :2]).reshape(-1, 2)
+    f = torch.addcmul(o[:, 2, None, None], t, d[..., 2, None]) - fn(xy).reshape(n, r, samples)
     z0 = (o[:, 2] - fn(o[:, :2]))[:, None].expand(n, r)  # camera height above the ground
     below = f <= 0.0
     hit = below.any(dim=-1)
