@@ -233,6 +233,7 @@ class HikingEnv(EnvBase):
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
         self._reset_worlds(ids)
         state = self._read_state()
+        state["goal_dirs_w"] = self._goal_dirs(state["pos"])
         self._render_depth(np.isin(np.arange(N), ids))
         obs = self._observations(state)
         zeros = np.zeros(N)
@@ -272,6 +273,7 @@ class HikingEnv(EnvBase):
 
         state = self._read_state()
         self._advance_goals(state)
+        state["goal_dirs_w"] = self._goal_dirs(state["pos"])
         fell = (
             (np.abs(state["roll"]) > self.cfg.fall_roll_pitch)
             | (np.abs(state["pitch"]) > self.cfg.fall_roll_pitch)
@@ -438,7 +440,7 @@ class HikingEnv(EnvBase):
         self.last_contact = s["contact"]
         return RewardState(
             lin_vel_w=s["lin_vel_w"], ang_vel_b=s["ang_vel_b"], gravity_b=s["gravity_b"],
-            goal_dir_w=self._goal_dirs(s["pos"])[:, 0], yaw=s["yaw"],
+            goal_dir_w=s["goal_dirs_w"][:, 0], yaw=s["yaw"],
             cmd_speed=np.full(self.cfg.num_envs, self.cfg.cmd_speed),
             q=s["q"], dq=s["dq"], dq_prev=self.dq_prev, q_default=self.q_default,
             q_limits=self.q_soft_limits, hip_idx=self.built.hip_idx,
@@ -480,8 +482,7 @@ class HikingEnv(EnvBase):
             ],
             axis=1,
         )
-        dirs_w = self._goal_dirs(s["pos"])
-        dirs_b = world_to_yaw_frame(dirs_w, yaw)
+        dirs_b = world_to_yaw_frame(s["goal_dirs_w"], yaw)
         obs = {
             "proprio": proprio,
             "goal_gps": world_to_yaw_frame(s["goal_vec"], yaw),
