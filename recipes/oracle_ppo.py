@@ -22,7 +22,13 @@ from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
-from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
+from legoh_rl.objectives.ppo import (
+    AdaptiveKLScheduler,
+    PPOConfig,
+    make_ppo_loss,
+    policy_kl,
+    set_loss_coefficients,
+)
 from legoh_rl.training.builders import make_env, make_oracle, policy_meta, require_positive
 from legoh_rl.training.checkpoint import (
     check_meta,
@@ -35,12 +41,16 @@ from legoh_rl.training.checkpoint import (
 from legoh_rl.training.run_log import RunLog
 
 
-def make_ppo(actor, critic, cfg: DictConfig):
-    ppo_cfg = PPOConfig(
+def ppo_config(cfg: DictConfig) -> PPOConfig:
+    return PPOConfig(
         clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff, gamma=cfg.gamma, lmbda=cfg.lmbda,
         learning_rate=cfg.learning_rate, desired_kl=cfg.desired_kl, num_epochs=cfg.num_epochs,
         num_minibatches=cfg.num_minibatches, max_grad_norm=cfg.max_grad_norm,
     )
+
+
+def make_ppo(actor, critic, cfg: DictConfig):
+    ppo_cfg = ppo_config(cfg)
     loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
     optim = torch.optim.Adam(loss.parameters(), lr=ppo_cfg.learning_rate)
     sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
@@ -100,9 +110,13 @@ def build(cfg: DictConfig, env=None) -> dict:
         state = load_checkpoint(path)
         check_meta(state["meta"], parts["meta"], path)
         loss.load_state_dict(state["loss"])
+        set_loss_coefficients(loss, ppo_config(cfg.ppo))  # the config's weights, not the checkpoint's
         optim.load_state_dict(state["optim"])
         sched.load_state_dict(state["sched"])
+        levels = env.curriculum.levels.copy()
         env.load_state_dict(state["env"])
+        if not cfg.checkpoint.get("keep_curriculum", True):  # a new stage: worlds start again on env.levels
+            env.curriculum.levels[:] = levels
         set_rng_state(state["rng"])
         parts.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")

@@ -51,6 +51,24 @@ def test_oracle_trains_then_resumes_where_it_stopped(tmp_path):
     assert load_checkpoint(ck / "last.pt")["iteration"] == 3
 
 
+def test_resume_as_a_new_stage_takes_the_configs_coefficients_and_levels(tmp_path):
+    ck = tmp_path / "ck"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}"]))
+    saved = load_checkpoint(ck / "last.pt")
+    saved["env"]["curriculum"]["levels"][:] = 3  # as if the curriculum had moved every world up
+    torch.save(saved, ck / "last.pt")
+    stage = ["collector.total_frames=64", f"checkpoint.dir={ck}", "checkpoint.resume=auto", "ppo.entropy_coeff=0.002",
+             "ppo.clip_epsilon=0.1", "env.levels=[1]"]
+    same = oracle_ppo.build(cfg_of("oracle_ppo", TINY + stage))
+    assert (same["env"].curriculum.levels == 3).all()  # default: the curriculum state is kept
+    new = oracle_ppo.build(cfg_of("oracle_ppo", TINY + stage + ["checkpoint.keep_curriculum=false"]))
+    assert (new["env"].curriculum.levels == 1).all()
+    for parts in (same, new):  # the loss buffers take the config's values, not the checkpoint's 0.01 / 0.2
+        assert parts["loss"].entropy_coeff.item() == pytest.approx(0.002)
+        assert parts["loss"].clip_epsilon.item() == pytest.approx(0.1)
+        assert parts["iteration"] == 1 and parts["frames"] == 32
+
+
 @pytest.mark.parametrize("override,message", [
     ("env.robot=atlas", r"unknown robot 'atlas'"),
     ("env.categories=[swamp]", r"unknown trail category 'swamp'"),

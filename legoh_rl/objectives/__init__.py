@@ -17,6 +17,7 @@ from legoh_rl.objectives.ppo import (
     PPOConfig,
     gaussian_kl,
     make_ppo_loss,
+    set_loss_coefficients,
     policy_kl,
 )
 
@@ -29,5 +30,6 @@ __all__ = [
     "cosine_similarity",
     "gaussian_kl",
     "make_ppo_loss",
+    "set_loss_coefficients",
     "policy_kl",
 ]

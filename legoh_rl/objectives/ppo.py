@@ -31,6 +31,7 @@ __all__ = [
     "gaussian_kl",
     "make_ppo_loss",
     "policy_kl",
+    "set_loss_coefficients",
 ]
 
 
@@ -132,6 +133,24 @@ def make_ppo_loss(
     )
     loss.make_value_estimator(ValueEstimators.GAE, gamma=cfg.gamma, lmbda=cfg.lmbda)
     return loss, loss.value_estimator
+
+
+def set_loss_coefficients(loss: ClipPPOLoss, cfg: PPOConfig) -> None:
+    """Write ``cfg``'s clip range and entropy/critic weights into ``loss``'s buffers.
+
+    ``ClipPPOLoss`` keeps these as buffers, so ``load_state_dict`` of a checkpoint restores the
+    values of the run that wrote it. Call this after loading to make the current config win (a
+    resumed run with a new entropy weight, for example).
+
+    Raises:
+        ValueError: ``cfg.entropy_coeff > 0`` but ``loss`` was built without an entropy bonus.
+    """
+    if cfg.entropy_coeff > 0 and not loss.entropy_bonus:
+        raise ValueError(f"entropy_coeff={cfg.entropy_coeff} needs a loss built with an entropy bonus")
+    loss.clip_epsilon.fill_(cfg.clip_epsilon)
+    loss.critic_coeff.fill_(cfg.critic_coeff)
+    if loss.entropy_bonus:
+        loss.entropy_coeff.fill_(cfg.entropy_coeff)
 
 
 def gaussian_kl(old_loc: Tensor, old_scale: Tensor, new_loc: Tensor, new_scale: Tensor) -> Tensor:
