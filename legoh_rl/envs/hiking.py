@@ -467,6 +467,7 @@ class HikingEnv(EnvBase):
             getattr(self.trails, "ground_height_at_t", self.trails.ground_height_at),
             self.rng,
             z_max=self.trails.max_height_near(pos[:, :2]) if hasattr(self.trails, "max_height_near") else None,
+            z_min=self.trails.min_height_near(pos[:, :2]) if hasattr(self.trails, "min_height_near") else None,
         )
 
     def _observations(self, s: dict) -> dict:

@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 import torch
 
+from legoh_rl.envs.height_map import as_grid_sampler, torch_height_fn
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP
 
 __all__ = [
@@ -40,6 +41,8 @@ class DepthCameraConfig:
             rays that hit nothing read ``far`` (1.0).
         noise_std: std of additive Gaussian noise on the normalised depth (0 = off).
         dropout: probability that a pixel reads 0 (missing return, as a stereo camera's holes).
+        march_samples: coarse samples per ray of the height-map ray march (see
+            :func:`march_ground`): fewer is faster, more resolves thinner features.
     """
 
     height: int = 64
@@ -48,10 +51,13 @@ class DepthCameraConfig:
     far: float = 4.0
     noise_std: float = 0.0
     dropout: float = 0.0
+    march_samples: int = 12
 
     def __post_init__(self) -> None:
         if self.height < 1 or self.width < 1:
             raise ValueError(f"depth resolution must be positive, got {self.height}x{self.width}")
+        if self.march_samples < 2:
+            raise ValueError(f"march_samples must be >= 2, got {self.march_samples}")
         if not 0.0 <= self.near < self.far:
             raise ValueError(f"need 0 <= near < far, got near={self.near}, far={self.far}")
 
@@ -93,6 +99,7 @@ class DepthCamera:
         ground_fn: Callable[[np.ndarray], np.ndarray],
         rng: np.random.Generator | None = None,
         z_max: np.ndarray | None = None,
+        z_min: np.ndarray | None = None,
     ) -> np.ndarray:
         """Depth images of worlds ``ids``.
 
@@ -113,6 +120,8 @@ class DepthCamera:
             rng: noise generator (needed when noise or dropout is on).
             z_max: (n,) highest terrain around each camera (optional): rays are marched only
                 from where they descend below it.
+            z_min: (n,) lowest terrain around each camera (optional): rays are marched only
+                until they descend below it.
 
         Returns:
             (n, 1, H, W) float32 normalised depth in [0, 1].
@@ -121,10 +130,10 @@ class DepthCamera:
         n = ids.size
         if n == 0:
             return np.zeros((0, 1, cfg.height, cfg.width), dtype=np.float32)
-        vec = np.einsum("nij,rj->nri", cam_mat, self._dirs_cam)
+        vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))  # (n, R, 3) world-frame rays
         t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
         # 1) march every ray against the surface map (ground + rasterised obstacle tops)
-        dist = march_ground(cam_pos, vec, t_max, surface_fn, z_max=z_max)
+        dist = march_ground(cam_pos, vec, t_max, surface_fn, samples=self.cfg.march_samples, z_max=z_max, z_min=z_min)
         # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march
         hit_xy = cam_pos[:, None, :2] + np.where(np.isfinite(dist), dist, 0.0)[..., None] * vec[..., :2]
         flat_xy = torch.as_tensor(hit_xy.reshape(-1, 2), dtype=torch.float32)
@@ -132,7 +141,8 @@ class DepthCamera:
         on_obstacle = rise.numpy().reshape(dist.shape) > 0.02
         on_obstacle &= np.isfinite(dist)
         if on_obstacle.any():
-            dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn)
+            dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn,
+                                            z_max, z_min)
         z = np.where(np.isfinite(dist), dist * self._axis_cos[None, :], cfg.far)
         depth = (np.clip(z, cfg.near, cfg.far) - cfg.near) / (cfg.far - cfg.near)
         if cfg.noise_std > 0.0 or cfg.dropout > 0.0:
@@ -144,7 +154,8 @@ class DepthCamera:
                 depth = np.where(rng.random(depth.shape) < cfg.dropout, 0.0, depth)
         return depth.reshape(n, 1, cfg.height, cfg.width).astype(np.float32)
 
-    def _exact_on_obstacles(self, batch, cam_pos, vec, t_max, ids, flagged, dist, ground_fn) -> np.ndarray:
+    def _exact_on_obstacles(self, batch, cam_pos, vec, t_max, ids, flagged, dist, ground_fn, z_max=None,
+                            z_min=None) -> np.ndarray:
         """Exact distances for the ``flagged`` (n, R) rays.
 
         Worlds are grouped by their number of flagged rays into power-of-two buckets; each bucket
@@ -164,7 +175,9 @@ class DepthCamera:
             sub_pnt = np.broadcast_to(cam_pos[sel, None, :], sub_vec.shape)
             obs, _ = batch.ray(sub_pnt, sub_vec, geomgroup=self._obstacle_groups, flg_static=True,
                                ids=ids[sel].astype(np.int32))
-            ground = march_ground(cam_pos[sel], sub_vec, np.take_along_axis(t_max[sel], order, axis=1), ground_fn)
+            ground = march_ground(cam_pos[sel], sub_vec, np.take_along_axis(t_max[sel], order, axis=1), ground_fn,
+                                  samples=self.cfg.march_samples, z_max=None if z_max is None else z_max[sel],
+                                  z_min=None if z_min is None else z_min[sel])
             exact = np.minimum(np.where(obs < 0.0, np.inf, obs), ground)
             rows = np.repeat(sel, k).reshape(sel.size, k)
             out[rows[valid], order[valid]] = exact[valid]
@@ -179,61 +192,68 @@ def march_ground(
     samples: int = 16,
     refine: int = 3,
     z_max: np.ndarray | None = None,
+    z_min: np.ndarray | None = None,
 ) -> np.ndarray:
     """First intersection of rays with a height map, vectorised over every ray (torch, float32).
 
-    Each ray ``o + t d`` is sampled at ``samples`` points in (t_0, t_max]; the first sample below
+    Each ray ``o + t d`` is sampled at ``samples`` points in (t_0, t_1]; the first sample below
     the ground brackets the hit, which ``refine`` regula-falsi steps then locate (exact where the
     ground is planar between the bracket's ends). ``t_0`` is where the ray descends below
-    ``z_max``, the highest terrain it can meet (0 without ``z_max``): skipping the stretch that
-    cannot hit concentrates the samples where hits are.
+    ``z_max``, the highest terrain it can meet (0 without ``z_max``), and ``t_1`` where it
+    descends below ``z_min``, the lowest (``t_max`` without ``z_min``): past ``t_1`` the ray is
+    under every surface it could have met, so the hit lies in between. The narrower the bracket,
+    the denser the samples where hits are.
 
     Args:
         origin: ray origins per world, (n, 3).
         dirs: unit ray directions, (n, R, 3).
         t_max: longest distance to look along each ray, (n, R).
-        ground_fn: height at xy points, (M, 2) -> (M,); a torch function (tensor in, tensor out,
-            see :func:`torch_height_fn`) or a numpy one.
+        ground_fn: height at xy points, (M, 2) -> (M,): a :class:`~legoh_rl.envs.height_map.HeightMap`
+            (fastest: the march then runs in the map's grid coordinates), a torch function (see
+            :func:`torch_height_fn`) or a numpy one.
         samples: coarse samples per ray.
         refine: regula-falsi iterations inside the bracket.
         z_max: (n,) upper bound of the terrain height each world's rays can meet, or None.
+        z_min: (n,) lower bound of that terrain height, or None.
 
     Returns:
         (n, R) float64 distance to the hit along each ray; ``inf`` where the ray stays above.
     """
-    fn = torch_height_fn(ground_fn)
+    hm = as_grid_sampler(ground_fn)
     o = torch.as_tensor(origin, dtype=torch.float32)
     d = torch.tensor(np.asarray(dirs, dtype=np.float32))
     tm = torch.tensor(np.asarray(t_max, dtype=np.float32))  # a copy: t_max may be a read-only view
-    n, r, _ = d.shape
+    oz, dz = o[:, 2, None], d[..., 2]  # (n, 1), (n, R)
+    og, dg = hm.to_grid(o[:, :2])[:, None, :], hm.dirs_to_grid(d[..., :2])  # (n, 1, 2), (n, R, 2)
+    down = dz < 0.0
+    inv_down = 1.0 / (-dz).clamp_min(1e-6)
     t0 = torch.zeros_like(tm)
     if z_max is not None:
-        above = o[:, 2:3] - torch.as_tensor(np.asarray(z_max, dtype=np.float32))[:, None]  # (n, 1)
-        down = d[..., 2] < 0.0
-        t0 = torch.where(down, (above / -d[..., 2].clamp(max=-1e-6)).clamp_min(0.0), t0)
+        above = oz - torch.as_tensor(np.asarray(z_max, dtype=np.float32))[:, None]  # (n, 1)
+        t0 = torch.where(down, (above * inv_down).clamp_min(0.0), t0)
         t0 = torch.where(~down & (above > 0.0), tm, t0)  # level/upward rays above all terrain: no hit
         t0 = torch.minimum(t0, tm)
+    if z_min is not None:  # below z_min the ray is under all terrain: the hit came before
+        depth = oz - torch.as_tensor(np.asarray(z_min, dtype=np.float32))[:, None] + 1e-3
+        tm = torch.where(down, torch.minimum(tm, depth.clamp_min(0.0) * inv_down), tm)
+        tm = torch.maximum(tm, t0)
     frac = torch.arange(1, samples + 1, dtype=torch.float32) / samples
-    t = t0[..., None] + (tm - t0)[..., None] * frac  # (n, R, S)
-    xy = torch.addcmul(o[:, None, None, :2], t[..., None], d[:, :, None, :2]).reshape(-1, 2)
-    f = torch.addcmul(o[:, 2, None, None], t, d[..., 2, None]) - fn(xy).reshape(n, r, samples)
-    z0 = (o[:, 2] - fn(o[:, :2]))[:, None].expand(n, r)  # camera height above the ground
+    t = torch.addcmul(t0[..., None], (tm - t0)[..., None], frac)  # (n, R, S)
+    g = _ray_points(og, t, dg)  # (n, R, S, 2)
+    f = torch.addcmul(oz[..., None], t, dz[..., None]) - hm.sample_grid(g)
     below = f <= 0.0
     hit = below.any(dim=-1)
     k = below.to(torch.int8).argmax(dim=-1, keepdim=True)  # first sample below the ground
     t_hi, f_hi = t.gather(-1, k)[..., 0], f.gather(-1, k)[..., 0]
     prev = (k - 1).clamp_min(0)
     first = k[..., 0] == 0
-    if z_max is not None:  # at t0 the ray is at (or above) z_max >= terrain: a valid bracket start
-        p0 = o[:, None, :] + t0[..., None] * d
-        z0 = p0[..., 2] - fn(p0[..., :2].reshape(-1, 2)).reshape(n, r)
+    # at t0 the ray is at (or above) z_max >= terrain, or at the camera: a valid bracket start
+    z0 = oz + t0 * dz - hm.sample_grid(torch.addcmul(og, t0[..., None], dg))
     t_lo = torch.where(first, t0, t.gather(-1, prev)[..., 0])
     f_lo = torch.where(first, z0, f.gather(-1, prev)[..., 0])
-    o3, d3 = o[:, None, :], d
     for _ in range(refine):
         t_mid = t_lo + (t_hi - t_lo) * (f_lo / (f_lo - f_hi).clamp_min(1e-9)).clamp(0.0, 1.0)
-        p = o3 + t_mid[..., None] * d3
-        f_mid = p[..., 2] - fn(p[..., :2].reshape(-1, 2)).reshape(n, r)
+        f_mid = oz + t_mid * dz - hm.sample_grid(torch.addcmul(og, t_mid[..., None], dg))
         above = f_mid > 0.0
         t_lo, f_lo = torch.where(above, t_mid, t_lo), torch.where(above, f_mid, f_lo)
         t_hi, f_hi = torch.where(above, t_hi, t_mid), torch.where(above, f_hi, f_mid)
@@ -241,16 +261,13 @@ def march_ground(
     return torch.where(hit, t_hit, torch.full_like(t_hit, float("inf"))).double().numpy()
 
 
-def torch_height_fn(fn: Callable) -> Callable:
-    """A height function on torch tensors: ``fn`` itself if it is marked ``torch_native``,
-    else a wrapper converting to and from numpy."""
-    if getattr(fn, "torch_native", False):
-        return fn
-
-    def wrapped(xy: torch.Tensor) -> torch.Tensor:
-        return torch.as_tensor(fn(xy.double().numpy()), dtype=torch.float32)
-
-    return wrapped
+def _ray_points(og: torch.Tensor, t: torch.Tensor, dg: torch.Tensor) -> torch.Tensor:
+    """``og + t * dg`` for (n, 1, 2) origins, (n, R, S) distances and (n, R, 2) directions ->
+    (n, R, S, 2), written one coordinate at a time (2.5x faster than one broadcast addcmul)."""
+    g = torch.empty(*t.shape, 2)
+    for c in range(2):
+        torch.mul(t, dg[..., c : c + 1], out=g[..., c]).add_(og[..., c : c + 1])
+    return g
 
 
 def scandot_offsets() -> np.ndarray:

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-import torch
-from scipy.ndimage import maximum_filter
+from scipy.ndimage import maximum_filter, minimum_filter
 
+from legoh_rl.envs.height_map import HeightMap
 from legoh_rl.envs.trails import TrailGrid, TrailGridConfig, build_trail_grid, check_category
 
 __all__ = ["GridTrails", "trails_for", "validate_categories", "VIEW_RADIUS"]
@@ -54,16 +54,15 @@ class GridTrails:
         self.tile_num_goals = grid.num_goals.reshape(t)
         self.tile_route_length = grid.route_length.reshape(t)
         tm = grid.map
-        self._bare = torch.tensor(tm.bare, dtype=torch.float32)[None, None]
-        self._surface = torch.tensor(tm.surface, dtype=torch.float32)[None, None]
-        nx, ny = tm.bare.shape
-        self._x0, self._y0 = tm.origin
-        self._sx = 2.0 / ((nx - 1) * tm.resolution)
-        self._sy = 2.0 / ((ny - 1) * tm.resolution)
-        self._torch_fns()
-        # highest surface within VIEW_RADIUS of every sample: where a camera's rays can first hit
+        origin, res = tuple(tm.origin), tm.resolution
+        #: torch height maps (world xy tensors in, heights out), used by the depth camera
+        self.height_at_t = HeightMap(tm.surface, origin, res)
+        self.ground_height_at_t = HeightMap(tm.bare, origin, res)
+        # highest surface / lowest ground within VIEW_RADIUS of every sample: the band of heights
+        # where a camera's rays can hit (used to bracket the ray march)
         cells = 2 * int(np.ceil(VIEW_RADIUS / tm.resolution)) + 1
-        self._zmax = torch.tensor(maximum_filter(tm.surface, size=cells, mode="nearest"), dtype=torch.float32)[None, None]
+        self._zmax = HeightMap(maximum_filter(tm.surface, size=cells, mode="nearest"), origin, res)
+        self._zmin = HeightMap(minimum_filter(tm.bare, size=cells, mode="nearest"), origin, res)
 
     def add_to_spec(self, spec: mujoco.MjSpec) -> None:
         """Add the grid's heightfield and obstacles to a model spec."""
@@ -71,40 +70,21 @@ class GridTrails:
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         """Surface height (ground and obstacle tops) at world points, (M, 2) -> (M,)."""
-        return self._sample(self._surface, xy)
+        return self.height_at_t.numpy(xy)
 
     def ground_height_at(self, xy: np.ndarray) -> np.ndarray:
         """Bare heightfield height (no obstacles) at world points, (M, 2) -> (M,)."""
-        return self._sample(self._bare, xy)
-
-    def _sample(self, image: torch.Tensor, xy: np.ndarray) -> np.ndarray:
-        """Bilinear lookup with the border clamped, as ``TerrainMap.height_at``, (M, 2) -> (M,)."""
-        p = torch.from_numpy(np.ascontiguousarray(xy, dtype=np.float32).reshape(-1, 2))
-        return self._sample_t(image, p).numpy().astype(np.float64)
-
-    def _sample_t(self, image: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-        """The same on float32 tensors, through ``torch.grid_sample`` (about 10x faster than
-        numpy gathers on the millions of points a depth frame needs)."""
-        grid = torch.empty(1, 1, p.shape[0], 2)
-        torch.sub(p[:, 1], self._y0, out=grid[0, 0, :, 0]).mul_(self._sy).sub_(1.0)
-        torch.sub(p[:, 0], self._x0, out=grid[0, 0, :, 1]).mul_(self._sx).sub_(1.0)
-        out = torch.nn.functional.grid_sample(image, grid, mode="bilinear", padding_mode="border", align_corners=True)
-        return out.reshape(-1)
-
-    def _torch_fns(self) -> None:
-        def surface(p: torch.Tensor) -> torch.Tensor:
-            return self._sample_t(self._surface, p)
-
-        def ground(p: torch.Tensor) -> torch.Tensor:
-            return self._sample_t(self._bare, p)
-
-        surface.torch_native = ground.torch_native = True
-        self.height_at_t, self.ground_height_at_t = surface, ground
+        return self.ground_height_at_t.numpy(xy)
 
     def max_height_near(self, xy: np.ndarray) -> np.ndarray:
         """Highest surface within ``VIEW_RADIUS`` (6 m) of world points, (M, 2) -> (M,): no ray
         from a camera there can hit the terrain above this height (used to skip ray marching)."""
-        return self._sample(self._zmax, xy)
+        return self._zmax.numpy(xy)
+
+    def min_height_near(self, xy: np.ndarray) -> np.ndarray:
+        """Lowest ground within ``VIEW_RADIUS`` of world points, (M, 2) -> (M,): a ray from a
+        camera there that has descended below this height has already hit the terrain."""
+        return self._zmin.numpy(xy)
 
     def edge_at(self, xy: np.ndarray) -> np.ndarray:
         """Whether world points lie on an edge cell, (M, 2) -> (M,) bool."""

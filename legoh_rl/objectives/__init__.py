@@ -17,8 +17,8 @@ from legoh_rl.objectives.ppo import (
     PPOConfig,
     gaussian_kl,
     make_ppo_loss,
-    set_loss_coefficients,
     policy_kl,
+    set_loss_coefficients,
 )
 
 __all__ = [

@@ -1,0 +1,100 @@
+"""Bilinear lookups on a regular height grid, in torch (float32) for the depth camera's ray march.
+
+The march evaluates the terrain at millions of points per frame. :class:`HeightMap` lets it work
+in the grid's own normalised coordinates: ray origins and directions are mapped once per ray
+(:meth:`HeightMap.to_grid`, :meth:`HeightMap.dirs_to_grid`, an affine map), so every sample
+along the ray is a single multiply-add followed by ``torch.grid_sample``, with no per-sample
+coordinate transform.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import torch
+
+__all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "torch_height_fn"]
+
+
+class HeightMap:
+    """Heights ``h[i, j]`` at ``(x0 + i * res, y0 + j * res)``, bilinear between, border clamped.
+
+    Args:
+        heights: (nx, ny) heights, m (x along rows, y along columns).
+        origin: world ``(x0, y0)`` of ``heights[0, 0]``, m.
+        resolution: cell size, m.
+
+    Calling the map with world points ``(M, 2)`` (a float32 tensor) returns ``(M,)`` heights;
+    :meth:`numpy` does the same on numpy arrays.
+    """
+
+    torch_native = True  # see legoh_rl.envs.sensors.torch_height_fn
+
+    def __init__(self, heights: np.ndarray, origin: tuple[float, float], resolution: float) -> None:
+        heights = np.asarray(heights)
+        if heights.ndim != 2 or min(heights.shape) < 2:
+            raise ValueError(f"heights must be a (nx, ny) grid with nx, ny >= 2, got shape {heights.shape}")
+        if not resolution > 0:
+            raise ValueError(f"resolution must be positive, got {resolution!r}")
+        nx, ny = heights.shape
+        self.image = torch.tensor(heights, dtype=torch.float32)[None, None]
+        self.x0, self.y0 = float(origin[0]), float(origin[1])
+        self.sx = 2.0 / ((nx - 1) * resolution)
+        self.sy = 2.0 / ((ny - 1) * resolution)
+
+    def to_grid(self, xy: torch.Tensor) -> torch.Tensor:
+        """World points (..., 2) -> ``grid_sample`` coordinates (..., 2) (column, row in [-1, 1])."""
+        return torch.stack([(xy[..., 1] - self.y0) * self.sy - 1.0, (xy[..., 0] - self.x0) * self.sx - 1.0], dim=-1)
+
+    def dirs_to_grid(self, dxy: torch.Tensor) -> torch.Tensor:
+        """World xy displacements (..., 2) -> displacements in grid coordinates (..., 2)."""
+        return torch.stack([dxy[..., 1] * self.sy, dxy[..., 0] * self.sx], dim=-1)
+
+    def sample_grid(self, g: torch.Tensor) -> torch.Tensor:
+        """Heights at grid coordinates (..., 2) -> (...)."""
+        out = torch.nn.functional.grid_sample(self.image, g.reshape(1, 1, -1, 2), mode="bilinear",
+                                              padding_mode="border", align_corners=True)
+        return out.reshape(g.shape[:-1])
+
+    def __call__(self, xy: torch.Tensor) -> torch.Tensor:
+        return self.sample_grid(self.to_grid(xy))
+
+    def numpy(self, xy: np.ndarray) -> np.ndarray:
+        """Heights at world points given as numpy, (M, 2) -> (M,) float64."""
+        p = torch.from_numpy(np.ascontiguousarray(xy, dtype=np.float32).reshape(-1, 2))
+        return self(p).numpy().astype(np.float64)
+
+
+class WorldSampler:
+    """The :class:`HeightMap` sampling interface over any height function of world xy points
+    (identity coordinates): lets the ray march take a plain ``(M, 2) -> (M,)`` function."""
+
+    def __init__(self, fn: Callable) -> None:
+        self._fn = torch_height_fn(fn)
+
+    def to_grid(self, xy: torch.Tensor) -> torch.Tensor:
+        return xy
+
+    def dirs_to_grid(self, dxy: torch.Tensor) -> torch.Tensor:
+        return dxy
+
+    def sample_grid(self, g: torch.Tensor) -> torch.Tensor:
+        return self._fn(g.reshape(-1, 2)).reshape(g.shape[:-1])
+
+
+def torch_height_fn(fn: Callable) -> Callable:
+    """A height function on torch tensors: ``fn`` itself if it is marked ``torch_native``,
+    else a wrapper converting to and from numpy."""
+    if getattr(fn, "torch_native", False):
+        return fn
+
+    def wrapped(xy: torch.Tensor) -> torch.Tensor:
+        return torch.as_tensor(fn(xy.double().numpy()), dtype=torch.float32)
+
+    return wrapped
+
+
+def as_grid_sampler(fn: Callable) -> HeightMap | WorldSampler:
+    """``fn`` itself if it is a :class:`HeightMap`, else a :class:`WorldSampler` around it."""
+    return fn if isinstance(fn, HeightMap) else WorldSampler(fn)
