@@ -2,8 +2,10 @@
 
 Paper "Unified Hiking Policy Learning with Vision" and "Hierarchical Latent Matching":
 
-1. DAgger: the student acts; the frozen oracle labels the same steps from the privileged state
-   (``z_tea``, expert goals, its action); the student minimises L_im (Eq. 1).
+1. DAgger: the frozen oracle labels every step from the privileged state (``z_tea``, expert
+   goals, its action) and the student minimises L_im (Eq. 1). The student acts, except that at
+   each step the teacher's action is executed instead with probability beta (``dagger_beta0``,
+   decayed linearly to 0 over the DAgger iterations, as in Ross et al.'s DAgger).
 2. Then PPO (rewards, with point-navigation distance) + L_im + L_hie (Eqs. 6-9), while the masked
    VAE keeps training on the teacher's actions (L_rec, Eqs. 2-5) with its own optimiser.
 
@@ -38,7 +40,13 @@ from legoh_rl.training.checkpoint import (
     save_checkpoint,
     set_rng_state,
 )
-from legoh_rl.training.distill import STUDENT_ACTION_KEY, Teacher, student_pass
+from legoh_rl.training.distill import (
+    STUDENT_ACTION_KEY,
+    DAggerMixture,
+    Teacher,
+    dagger_beta,
+    student_pass,
+)
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.student import make_student, student_env
 
@@ -182,7 +190,9 @@ def train(cfg: DictConfig) -> dict:
     if remaining < fpb:
         print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": iteration, "frames": frames}
-    collector = Collector(env, student.policy, frames_per_batch=fpb, total_frames=remaining,
+    behaviour = DAggerMixture(student.policy, p["teacher"], seed=int(cfg.env.seed))
+    behaviour.beta = dagger_beta(iteration, float(cfg.dagger_beta0), int(cfg.dagger_iters))
+    collector = Collector(env, behaviour, frames_per_batch=fpb, total_frames=remaining,
                           exploration_type=ExplorationType.RANDOM)
 
     def checkpoint() -> Path:
@@ -198,8 +208,11 @@ def train(cfg: DictConfig) -> dict:
     bar = tqdm(total=remaining, unit="frames", desc=f"unified ({cfg.student.perception})")
     for data in collector:
         stats = update(p, data, iteration, cfg)
-        collector.update_policy_weights_()
+        stats["train/dagger_beta"] = behaviour.beta
+        stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
         iteration += 1
+        behaviour.beta = dagger_beta(iteration, float(cfg.dagger_beta0), int(cfg.dagger_iters))
+        collector.update_policy_weights_()
         frames += data.numel()
         bar.update(data.numel())
         stats = run.log(iteration, frames, data, base, stats)

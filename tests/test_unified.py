@@ -80,3 +80,37 @@ def test_bad_teacher_refused(tmp_path):
         unified.build(tiny("/nope.pt", tmp_path))
     with pytest.raises(ValueError, match="unknown student.perception 'resnet'"):
         unified.build(tiny("/nope.pt", tmp_path, "student.perception=resnet"))
+
+
+def test_dagger_beta_schedule():
+    from legoh_rl.training.distill import dagger_beta
+
+    assert [dagger_beta(i, 1.0, 4) for i in range(6)] == [1.0, 0.75, 0.5, 0.25, 0.0, 0.0]
+    assert dagger_beta(1, 0.5, 2) == 0.25 and dagger_beta(0, 0.8, 0) == 0.0
+    with pytest.raises(ValueError, match=r"beta0 must be in \[0, 1\], got 1.5"):
+        dagger_beta(0, 1.5, 10)
+
+
+def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teacher, tmp_path):
+    from legoh_rl.training.distill import DAggerMixture
+
+    p = unified.build(tiny(teacher, tmp_path))
+    mix = DAggerMixture(p["student"].policy, p["teacher"], seed=0)
+    td = p["env"].reset()
+    expected = p["teacher"].label(td.clone())["action_tea"]
+    with torch.no_grad():
+        mix.beta = 1.0
+        out = mix(td.clone())
+        assert out["teacher_acted"].all() and torch.allclose(out["action"], expected)
+        mix.beta = 0.0
+        out = mix(td.clone())
+        assert not out["teacher_acted"].any() and not torch.allclose(out["action"], expected)
+        # the student's action is what the student policy alone writes (same sampling seed)
+        torch.manual_seed(3)
+        alone = p["student"].policy(td.clone())["action"]
+        torch.manual_seed(3)
+        assert torch.equal(mix(td.clone())["action"], alone)
+    # a collection run in the DAgger phase records the mixture and its beta
+    out = unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=80", "dagger_iters=4"))
+    assert out["iteration"] == 2 and out["train/dagger_beta"] == pytest.approx(0.75)  # of the 2nd batch
+    assert 0.0 < out["train/teacher_acted"] < 1.0  # 40 coin flips at 0.75

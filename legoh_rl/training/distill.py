@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor, make_oracle_critic
 from legoh_rl.training.checkpoint import load_checkpoint
 
-__all__ = ["Teacher", "student_pass", "STUDENT_ACTION_KEY"]
+__all__ = ["Teacher", "DAggerMixture", "dagger_beta", "student_pass", "STUDENT_ACTION_KEY"]
 
 STUDENT_ACTION_KEY = "loc_uni"
 
@@ -64,6 +65,57 @@ class Teacher:
         networks.load_state_dict(self.networks.state_dict())
         networks.requires_grad_(True)
         return make_oracle_critic(networks), networks
+
+
+def dagger_beta(iteration: int, beta0: float, dagger_iters: int) -> float:
+    """DAgger's mixing weight at an iteration: ``beta0`` decayed linearly to 0 at ``dagger_iters``.
+
+    ``beta`` is the probability that the teacher's action is executed at a step (Ross et al.,
+    2011: ``pi_i = beta_i pi* + (1 - beta_i) pi_hat_i``). It is 0 from ``dagger_iters`` on, when
+    PPO joins and the rollout must come from the student's own distribution.
+    """
+    if not 0.0 <= beta0 <= 1.0:
+        raise ValueError(f"beta0 must be in [0, 1], got {beta0}")
+    if iteration >= dagger_iters or dagger_iters <= 0:
+        return 0.0
+    return beta0 * (1.0 - iteration / dagger_iters)
+
+
+class DAggerMixture(TensorDictModuleBase):
+    """The collection policy of DAgger: the student acts, but at each step and world the
+    teacher's deterministic action replaces the student's with probability :attr:`beta`.
+
+    The student still runs on every step (its recurrent perception state advances as if it had
+    acted), so switching ``beta`` to 0 leaves exactly the student's policy.
+
+    Args:
+        student_policy: the student's acting module (writes ``action``).
+        teacher: the frozen :class:`Teacher` (reads the privileged observations of the step).
+        seed: seeds the per-step coin flips.
+
+    Writes ``action`` (*B, A) and ``teacher_acted`` (*B,) bool.
+    """
+
+    def __init__(self, student_policy: TensorDictModuleBase, teacher: Teacher, seed: int = 0) -> None:
+        super().__init__()
+        self.student_policy = student_policy
+        self.teacher = teacher
+        self.beta = 1.0
+        self.in_keys = list(dict.fromkeys([*student_policy.in_keys, *teacher._net.in_keys]))
+        self.out_keys = list(dict.fromkeys([*student_policy.out_keys, "action", "teacher_acted"]))
+        self._gen = torch.Generator().manual_seed(int(seed))
+
+    def forward(self, td: TensorDictBase) -> TensorDictBase:
+        td = self.student_policy(td)
+        acted = torch.zeros(td.batch_size, dtype=torch.bool, device=td.device)
+        if self.beta > 0.0:
+            acted = torch.rand(td.batch_size, generator=self._gen).to(td.device) < self.beta
+            with torch.no_grad():
+                teacher_action = self.teacher._net(td.select(*self.teacher._net.in_keys).copy())["loc"]
+            action = td.get("action")
+            td.set("action", torch.where(acted[..., None], teacher_action.to(action.dtype), action))
+        td.set("teacher_acted", acted)
+        return td
 
 
 def student_pass(student, td: TensorDictBase) -> TensorDictBase:
