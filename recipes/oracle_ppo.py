@@ -101,7 +101,8 @@ def build(cfg: DictConfig, env=None) -> dict:
     torch.manual_seed(int(cfg.env.seed))
     env = env if env is not None else make_env(cfg.env, mode="oracle")
     layers = tuple(cfg.model.layers) if cfg.model.get("layers") else None
-    networks, actor, critic = make_oracle(env, cfg.model.init_std, layers)
+    max_std = cfg.model.get("max_std")
+    networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std))
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
     parts = {"env": env, "networks": networks, "actor": actor, "loss": loss, "gae": gae, "optim": optim,
              "sched": sched, "meta": policy_meta(env, "oracle"), "iteration": 0, "frames": 0, "run_id": None}

@@ -172,3 +172,20 @@ def test_locomotion_actor():
     td["goal_next"] = torch.randn(6, 3)
     with pytest.raises(ValueError, match="goal_next"):
         actor(td)
+
+
+def test_gaussian_head_std_ceiling():
+    import math
+
+    from legoh_rl.modules.distributions import GaussianHead
+
+    head = GaussianHead(4, 3, init_std=1.0, max_std=0.5)
+    with torch.no_grad():
+        head.log_std.copy_(torch.log(torch.tensor([0.2, 0.5, 2.0])))
+    loc, scale = head(torch.zeros(2, 4))
+    assert torch.allclose(scale, torch.tensor([[0.2, 0.5, 0.5]] * 2))
+    # above the ceiling the std gets no gradient from the scale
+    scale.sum().backward()
+    assert head.log_std.grad[2] == 0.0 and math.isclose(head.log_std.grad[0].item(), 2 * 0.2, rel_tol=1e-5)
+    with pytest.raises(ValueError, match=r"max_std must exceed min_std \(0.0001\), got 0.0"):
+        GaussianHead(4, 3, max_std=0.0)

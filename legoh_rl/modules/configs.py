@@ -352,6 +352,7 @@ class OracleConfig:
         body_out_activation: after the last actor/critic MLP layer (Tanh, paper: "Tanh for
             the output layer"; the linear mean/value head follows it).
         init_std: initial state-independent action std.
+        max_std: if set, a ceiling on the action std (``None``: no ceiling).
         loc_bound: if set, ``loc = loc_bound * tanh(head)`` bounds the action means; ``None``
             (default) keeps the linear head unbounded like rsl_rl.
         share_encoders: the critic reuses the actor's scandot/privileged encoders (``True``)
@@ -372,6 +373,7 @@ class OracleConfig:
     priv_out_activation: str = "elu"
     body_out_activation: str = "tanh"
     init_std: float = 1.0
+    max_std: float | None = None
     loc_bound: float | None = None
     share_encoders: bool = False
 
@@ -384,6 +386,8 @@ class OracleConfig:
             _positive_seq(f"OracleConfig.{name}", getattr(self, name))
         if self.loc_bound is not None:
             _positive("OracleConfig.loc_bound", self.loc_bound)
+        if self.max_std is not None:
+            _positive("OracleConfig.max_std", self.max_std)
 
     @property
     def latent_dim(self) -> int:

@@ -29,7 +29,8 @@ class GaussianHead(nn.Module):
 
     ``loc = Linear(features)`` (or ``loc_bound * tanh(Linear(features))`` when
     ``loc_bound`` is set); ``scale = exp(log_std)`` is a learnable per-action parameter,
-    independent of the state, initialised to ``init_std`` and floored at ``min_std``.
+    independent of the state, initialised to ``init_std``, floored at ``min_std`` and, when
+    ``max_std`` is set, capped there (exploration noise that cannot grow past a ceiling).
     """
 
     def __init__(
@@ -39,21 +40,25 @@ class GaussianHead(nn.Module):
         init_std: float = 1.0,
         loc_bound: float | None = None,
         min_std: float = 1e-4,
+        max_std: float | None = None,
     ) -> None:
         super().__init__()
         if init_std <= 0:
             raise ValueError(f"GaussianHead: init_std must be positive, got {init_std}")
+        if max_std is not None and not max_std > min_std:
+            raise ValueError(f"GaussianHead: max_std must exceed min_std ({min_std}), got {max_std}")
         self.mean = nn.Linear(in_dim, num_actions)
         self.log_std = nn.Parameter(torch.full((num_actions,), math.log(init_std)))
         self.loc_bound = loc_bound
         self.min_std = min_std
+        self.max_std = max_std
 
     def forward(self, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(loc, scale)``."""
         loc = self.mean(features)
         if self.loc_bound is not None:
             loc = self.loc_bound * torch.tanh(loc)
-        scale = self.log_std.exp().clamp_min(self.min_std).expand_as(loc)
+        scale = self.log_std.exp().clamp(self.min_std, self.max_std).expand_as(loc)
         return loc, scale
 
 

@@ -52,7 +52,7 @@ class OracleActorNet(nn.Module):
         self.body = build_mlp(sum(self.dims), cfg.actor_layers, cfg.activation,
                               last_activation=cfg.body_out_activation)
         self.head = GaussianHead(int(cfg.actor_layers[-1]), cfg.num_actions, cfg.init_std,
-                                 cfg.loc_bound)
+                                 cfg.loc_bound, max_std=cfg.max_std)
 
     def forward(self, proprio, z_tea, priv_latent, expert_goals):
         """Return ``(loc, scale)``."""

@@ -53,9 +53,10 @@ def make_env(cfg: Mapping, mode: str, trails=None, **overrides) -> HikingEnv:
     return HikingEnv(env_config(cfg, mode, **overrides), trails=trails)
 
 
-def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None) -> OracleConfig:
+def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None,
+                  max_std: float | None = None) -> OracleConfig:
     """Oracle network sizes read from the env's specs; ``layers`` overrides the actor and critic
-    MLP widths (paper: [512, 256, 128])."""
+    MLP widths (paper: [512, 256, 128]); ``max_std`` caps the action std."""
     spec = env.observation_spec
     extra = {} if layers is None else {"actor_layers": tuple(layers), "critic_layers": tuple(layers)}
     return OracleConfig(
@@ -66,12 +67,14 @@ def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...]
         scandots_dim=spec["scandots"].shape[-1],
         num_goals=spec["expert_goals"].shape[-2],
         init_std=init_std,
+        max_std=max_std,
     )
 
 
-def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None):
+def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None,
+                max_std: float | None = None):
     """``(networks, actor, critic)`` of the oracle sized for ``env``."""
-    ocfg = oracle_config(env, init_std, layers)
+    ocfg = oracle_config(env, init_std, layers, max_std)
     networks = OracleNetworks(ocfg)
     actor, critic = make_oracle_actor_critic(ocfg, networks=networks)
     return networks, actor, critic
