@@ -1,6 +1,12 @@
 """Plot learning curves from a recipe's ``metrics.jsonl`` (written beside its checkpoints).
 
     python recipes/plot_curves.py outputs/oracle_h1 -o docs/img/oracle_h1_curves.png
+    python recipes/plot_curves.py outputs/stage1 outputs/stage2 -o curves.png   # resumed stages
+
+Several run directories are stages of one policy, each resumed from the previous one's
+checkpoint: their rows are joined in order (a stage's rows past the next stage's first step are
+dropped, since the next stage resumed from an earlier checkpoint) and the stage starts are
+marked. ``--smooth k`` overlays a k-iteration running mean on the raw curves.
 """
 
 from __future__ import annotations
@@ -29,14 +35,43 @@ def load(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
 
 
-def plot(rows: list[dict], out: Path, title: str) -> Path:
+def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[float]]:
+    """Rows of resumed stages as one run, and the step at which each later stage starts."""
+    rows: list[dict] = []
+    starts: list[float] = []
+    for i, stage in enumerate(stages):
+        if not stage:
+            continue
+        if i > 0:
+            starts.append(stage[0]["step"])
+            rows = [r for r in rows if r["step"] < stage[0]["step"]]
+        rows.extend(stage)
+    return rows, starts
+
+
+def running_mean(ys: list[float], k: int) -> list[float]:
+    """Mean of the last ``k`` values at each point (fewer at the start)."""
+    out, acc = [], 0.0
+    for i, y in enumerate(ys):
+        acc += y
+        if i >= k:
+            acc -= ys[i - k]
+        out.append(acc / min(i + 1, k))
+    return out
+
+
+def plot(rows: list[dict], out: Path, title: str, stage_starts: list[float] = (), smooth: int = 1) -> Path:
     """Six panels of the main training signals against environment steps."""
     fig, axes = plt.subplots(2, 3, figsize=(12, 6))
     for ax, (key, label) in zip(axes.ravel(), PANELS, strict=True):
         pts = [(r["step"], r[key]) for r in rows if r.get(key) is not None]
         if pts:
             xs, ys = zip(*pts, strict=True)
-            ax.plot(xs, ys, lw=1)
+            ax.plot(xs, ys, lw=1, alpha=0.35 if smooth > 1 else 1.0)
+            if smooth > 1:
+                ax.plot(xs, running_mean(list(ys), smooth), lw=1.5, color="C0")
+        for x in stage_starts:
+            ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
         ax.set_title(label)
         ax.set_xlabel("environment steps")
         ax.grid(alpha=0.3)
@@ -50,12 +85,18 @@ def plot(rows: list[dict], out: Path, title: str) -> Path:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("run_dir", type=Path, help="a recipe's checkpoint.dir (holds metrics.jsonl)")
+    parser.add_argument("run_dirs", type=Path, nargs="+",
+                        help="a recipe's checkpoint.dir (holds metrics.jsonl), or several resumed stages in order")
     parser.add_argument("-o", "--output", type=Path, default=None)
+    parser.add_argument("--smooth", type=int, default=1, help="running-mean window, iterations (1: raw only)")
+    parser.add_argument("--title", default=None)
     args = parser.parse_args()
-    rows = load(args.run_dir / "metrics.jsonl")
-    out = plot(rows, args.output or args.run_dir / "curves.png", str(args.run_dir))
-    print(f"{len(rows)} iterations -> {out}")
+    if args.smooth < 1:
+        parser.error(f"--smooth must be >= 1, got {args.smooth}")
+    rows, starts = join_stages([load(d / "metrics.jsonl") for d in args.run_dirs])
+    title = args.title or " -> ".join(str(d) for d in args.run_dirs)
+    out = plot(rows, args.output or args.run_dirs[-1] / "curves.png", title, starts, args.smooth)
+    print(f"{len(rows)} iterations in {len(args.run_dirs)} stage(s) -> {out}")
 
 
 if __name__ == "__main__":

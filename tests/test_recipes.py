@@ -153,3 +153,14 @@ def test_evaluate_missing_checkpoint(tmp_path):
     cfg = cfg_of("evaluate", ["checkpoint=/nonexistent.pt", f"output_dir={tmp_path}", "logger.backend=csv"])
     with pytest.raises(FileNotFoundError, match="checkpoint not found: /nonexistent.pt"):
         evaluate_recipe.evaluate(cfg)
+
+
+def test_plot_curves_joins_resumed_stages_and_smooths():
+    import plot_curves
+
+    first = [{"step": s, "reward/total": 1.0} for s in (10, 20, 30, 40)]
+    second = [{"step": s, "reward/total": 2.0} for s in (30, 40, 50)]  # resumed from the step-20 checkpoint
+    rows, starts = plot_curves.join_stages([first, second])
+    assert [r["step"] for r in rows] == [10, 20, 30, 40, 50] and starts == [30]
+    assert [r["reward/total"] for r in rows] == [1.0, 1.0, 2.0, 2.0, 2.0]
+    assert plot_curves.running_mean([1.0, 3.0, 5.0, 7.0], 2) == [1.0, 2.0, 4.0, 6.0]
