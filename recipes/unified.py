@@ -64,6 +64,7 @@ def validate(cfg: DictConfig) -> None:
     require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
     require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
     require_positive("checkpoint", cfg.checkpoint, "every")
+    require_positive("", cfg, "dagger_epochs")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
@@ -148,7 +149,7 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
             gae(data)
     n_mb = 0
     params = [q for g in p["optim"].param_groups for q in g["params"]]
-    for _ in range(cfg.ppo.num_epochs if rl else 1):
+    for _ in range(cfg.ppo.num_epochs if rl else int(cfg.dagger_epochs)):
         for idx in torch.randperm(data.shape[0]).chunk(cfg.ppo.num_minibatches):
             mb = data[idx].clone(False)
             student_pass(p["student"], mb)

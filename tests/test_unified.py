@@ -114,3 +114,8 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
     out = unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=80", "dagger_iters=4"))
     assert out["iteration"] == 2 and out["train/dagger_beta"] == pytest.approx(0.75)  # of the 2nd batch
     assert 0.0 < out["train/teacher_acted"] < 1.0  # 40 coin flips at 0.75
+
+
+def test_dagger_epochs_must_be_positive(teacher, tmp_path):
+    with pytest.raises(ValueError, match="^dagger_epochs must be a positive number, got 0$"):
+        unified.build(tiny(teacher, tmp_path, "dagger_epochs=0"))

@@ -20,7 +20,8 @@ def require_positive(section: str, cfg: Mapping, *names: str) -> None:
     for name in names:
         value = cfg[name]
         if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
-            raise ValueError(f"{section}.{name} must be a positive number, got {value!r}")
+            where = f"{section}.{name}" if section else name
+            raise ValueError(f"{where} must be a positive number, got {value!r}")
 
 
 def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
