@@ -55,7 +55,7 @@ def main() -> None:
     eval_dir = OUT / "eval"
     result = evaluate_recipe.evaluate(_compose("evaluate", [
         f"checkpoint={policy}", "categories=[randommix,ditch]", "levels=[0,1]", "robots_per_cell=4",
-        f"output_dir={eval_dir}", "video_seconds=10", "logger.exp_name=demo_eval",
+        f"output_dir={eval_dir}", "video_seconds=6", "logger.exp_name=demo_eval",
     ]))
     wandb_runs = sorted(str(p) for p in OUT.rglob("offline-run-*") if p.is_dir())
     print(f"\ndemo finished in {time.perf_counter() - start:.0f} s. Artefacts:")
