@@ -94,7 +94,8 @@ def build(cfg: DictConfig) -> dict:
     torch.manual_seed(int(cfg.env.seed))
     teacher = Teacher(cfg.teacher, cfg.env.robot)
     base = make_env(cfg.env, mode="student")
-    student = make_student(base, cfg.student.perception, cfg.student.preset)
+    init_std = cfg.student.get("init_std") or float(teacher.action_std.mean())  # null: the teacher's
+    student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std))
     env = student_env(base, student)
     critic, critic_nets = teacher.make_critic()
     ppo, gae, dagger, vae, hlm = make_losses(student, critic, base.A, cfg)
@@ -193,6 +194,7 @@ def train(cfg: DictConfig) -> dict:
         return {"iteration": iteration, "frames": frames}
     behaviour = DAggerMixture(student.policy, p["teacher"], seed=int(cfg.env.seed))
     behaviour.beta = dagger_beta(iteration, float(cfg.dagger_beta0), int(cfg.dagger_iters))
+    behaviour.student_mean = iteration < cfg.dagger_iters
     collector = Collector(env, behaviour, frames_per_batch=fpb, total_frames=remaining,
                           exploration_type=ExplorationType.RANDOM)
 
@@ -213,6 +215,7 @@ def train(cfg: DictConfig) -> dict:
         stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
         iteration += 1
         behaviour.beta = dagger_beta(iteration, float(cfg.dagger_beta0), int(cfg.dagger_iters))
+        behaviour.student_mean = iteration < cfg.dagger_iters
         collector.update_policy_weights_()
         frames += data.numel()
         bar.update(data.numel())

@@ -98,7 +98,9 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
     mix = DAggerMixture(p["student"].policy, p["teacher"], seed=0)
     td = p["env"].reset()
     expected = p["teacher"].label(td.clone())["action_tea"]
-    with torch.no_grad():
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # as the Collector samples
         mix.beta = 1.0
         out = mix(td.clone())
         assert out["teacher_acted"].all() and torch.allclose(out["action"], expected)
@@ -110,6 +112,10 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
         alone = p["student"].policy(td.clone())["action"]
         torch.manual_seed(3)
         assert torch.equal(mix(td.clone())["action"], alone)
+        # in the imitation phase the student executes its mean action, not a sample
+        mix.student_mean = True
+        out = mix(td.clone())
+        assert torch.equal(out["action"], out["loc"]) and not torch.equal(out["action"], alone)
     # a collection run in the DAgger phase records the mixture and its beta
     out = unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=80", "dagger_iters=4"))
     assert out["iteration"] == 2 and out["train/dagger_beta"] == pytest.approx(0.75)  # of the 2nd batch
@@ -119,3 +125,14 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
 def test_dagger_epochs_must_be_positive(teacher, tmp_path):
     with pytest.raises(ValueError, match="^dagger_epochs must be a positive number, got 0$"):
         unified.build(tiny(teacher, tmp_path, "dagger_epochs=0"))
+
+
+def test_student_starts_from_the_teachers_action_std(teacher, tmp_path):
+    t = unified.Teacher(str(teacher), "h1")
+    head = t.networks.actor.head
+    assert torch.allclose(t.action_std, head.log_std.exp())  # no ceiling on this teacher
+    p = unified.build(tiny(teacher, tmp_path))
+    student_std = p["student"].actor.module[0].module.head.log_std.exp()
+    assert torch.allclose(student_std, torch.full_like(student_std, float(t.action_std.mean())))
+    p = unified.build(tiny(teacher, tmp_path, "student.init_std=0.3"))
+    assert torch.allclose(p["student"].actor.module[0].module.head.log_std.exp(), torch.tensor(0.3))

@@ -48,6 +48,9 @@ class Teacher:
         self.networks.eval()
         self.actor = make_oracle_actor(self.networks)
         self._net = self.actor.module[0]  # encoders + actor MLP, writes z_tea, loc, scale
+        head = self.networks.actor.head
+        #: the teacher's exploration std, (A,) (its learned std under its ceiling)
+        self.action_std = head.log_std.exp().clamp(head.min_std, head.max_std).detach().clone()
 
     @torch.no_grad()
     def label(self, td: TensorDictBase) -> TensorDictBase:
@@ -86,7 +89,10 @@ class DAggerMixture(TensorDictModuleBase):
     teacher's deterministic action replaces the student's with probability :attr:`beta`.
 
     The student still runs on every step (its recurrent perception state advances as if it had
-    acted), so switching ``beta`` to 0 leaves exactly the student's policy.
+    acted), so switching ``beta`` to 0 leaves exactly the student's policy. With
+    :attr:`student_mean` the student's executed action is its mean (``loc``) rather than a sample:
+    imitation needs no exploration noise, and noise makes the robots fall into states the
+    deterministic student would never visit. Set it False when PPO joins.
 
     Args:
         student_policy: the student's acting module (writes ``action``).
@@ -101,12 +107,15 @@ class DAggerMixture(TensorDictModuleBase):
         self.student_policy = student_policy
         self.teacher = teacher
         self.beta = 1.0
+        self.student_mean = False
         self.in_keys = list(dict.fromkeys([*student_policy.in_keys, *teacher._net.in_keys]))
         self.out_keys = list(dict.fromkeys([*student_policy.out_keys, "action", "teacher_acted"]))
         self._gen = torch.Generator().manual_seed(int(seed))
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         td = self.student_policy(td)
+        if self.student_mean:
+            td.set("action", td.get("loc").clone())
         acted = torch.zeros(td.batch_size, dtype=torch.bool, device=td.device)
         if self.beta > 0.0:
             acted = torch.rand(td.batch_size, generator=self._gen).to(td.device) < self.beta

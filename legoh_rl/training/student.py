@@ -38,7 +38,8 @@ class StudentPolicy:
         self.policy = TensorDictSequential(hold, actor)
 
 
-def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu") -> StudentPolicy:
+def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
+                 init_std: float = 1.0) -> StudentPolicy:
     """Build the student sized for ``env`` (student or eval mode, depth on).
 
     Args:
@@ -46,6 +47,8 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu")
         perception: a name of :func:`legoh_rl.modules.perception.make_perception`
             (``tcvit``, ``tcvit_ct``, ``vanilla``, ``eph``, ``rmah``, ``rmab``).
         preset: ``"cpu"`` (64x64) or ``"paper"`` (128x128); must match the env's depth size.
+        init_std: initial action std of the locomotion actor (the unified recipe passes its
+            teacher's).
     """
     if not env.cfg.depth_enabled:
         raise ValueError("the student needs the depth camera: build the env in 'student' or 'eval' mode")
@@ -55,7 +58,7 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu")
     pcfg = perception_config(preset, proprio_dim, image_size=size, num_goals=spec["expert_goals"].shape[-2])
     perc = make_perception(perception, pcfg)
     hold = PerceptionHold(perc)
-    actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=env.A))
+    actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=env.A, init_std=init_std))
     return StudentPolicy(perc, hold, actor, pcfg.io.history_len)
 
 
