@@ -13,13 +13,11 @@ from __future__ import annotations
 import argparse
 import time
 
-import mujoco
 import numpy as np
 import torch
 from tensordict import TensorDict
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
-from legoh_rl.envs.robots import TERRAIN_GEOM_GROUPS
 from legoh_rl.envs.trail_source import trails_for
 
 CELLS = [("ditch", 3), ("gap", 4), ("forest", 2), ("hurdle", 4), ("randommix", 4)]
@@ -60,13 +58,8 @@ def accuracy(category: str, level: int, samples: int, lower: bool) -> tuple[floa
     ids = np.arange(4)
     cam = env.built.camera_id
     pos, mat = w.cam_xpos[ids, cam], w.cam_xmat[ids, cam].reshape(-1, 3, 3)
-    groups = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
-    groups[list(TERRAIN_GEOM_GROUPS)] = 1
-    vec = np.matmul(env.camera._dirs_cam, mat.transpose(0, 2, 1))
-    dist, _ = w.batch.ray(np.broadcast_to(pos[:, None], vec.shape), vec, geomgroup=groups, ids=ids.astype(np.int32))
+    ref = env.camera.render_exact(w.batch, pos, mat, ids)
     c = env.cfg.depth_camera
-    z = np.where(dist < 0, c.far, dist * env.camera._axis_cos)
-    ref = ((np.clip(z, c.near, c.far) - c.near) / (c.far - c.near)).reshape(4, 1, c.height, c.width)
     err = np.abs(render(env, ids, lower) - ref) * (c.far - c.near)
     return float(np.mean(err < 0.02)), float(np.mean(err < 0.10))
 

@@ -144,6 +144,12 @@ def test_depth_reads_wall_distance():
     c = env.cfg.depth_camera
     centre = td["depth"][0, 0, 31:33, 31:33].mean().item() * (c.far - c.near) + c.near
     assert centre == pytest.approx(expect, abs=0.03)
+    # the exact reference renderer (MuJoCo rays) reads the same distance
+    ids = np.arange(1)
+    exact = env.camera.render_exact(env.worlds.batch, env.worlds.cam_xpos[ids, env.built.camera_id],
+                                    env.worlds.cam_xmat[ids, env.built.camera_id].reshape(-1, 3, 3), ids)
+    assert exact.shape == (1, 1, 64, 64)
+    assert exact[0, 0, 31:33, 31:33].mean() * (c.far - c.near) + c.near == pytest.approx(expect, abs=0.01)
     # without the wall the same rays reach the ground at z-depth h / sin 45 (robot body not seen)
     env2 = make(n=1, mode="student", **quiet())
     td2 = env2.reset()

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from legoh_rl.envs.height_map import as_grid_sampler, torch_height_fn
-from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP
+from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, TERRAIN_GEOM_GROUPS
 
 __all__ = [
     "DepthCameraConfig",
@@ -143,8 +143,7 @@ class DepthCamera:
         if on_obstacle.any():
             dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn,
                                             z_max, z_min)
-        z = np.where(np.isfinite(dist), dist * self._axis_cos[None, :], cfg.far)
-        depth = (np.clip(z, cfg.near, cfg.far) - cfg.near) / (cfg.far - cfg.near)
+        depth = self._normalised(dist)
         if cfg.noise_std > 0.0 or cfg.dropout > 0.0:
             if rng is None:
                 raise ValueError("depth noise needs an rng")
@@ -153,6 +152,27 @@ class DepthCamera:
             if cfg.dropout > 0.0:
                 depth = np.where(rng.random(depth.shape) < cfg.dropout, 0.0, depth)
         return depth.reshape(n, 1, cfg.height, cfg.width).astype(np.float32)
+
+    def render_exact(self, batch, cam_pos: np.ndarray, cam_mat: np.ndarray, ids: np.ndarray) -> np.ndarray:
+        """Reference depth images by MuJoCo's exact ray casting against every terrain geom.
+
+        ``Batch.ray`` on the ground heightfield and the obstacles (groups 0 and 1), no noise: the
+        slow path :meth:`render` approximates (tens of times slower on a trail grid; for tests
+        and benchmarks). Arguments as :meth:`render`; returns (n, 1, H, W) float32 in [0, 1].
+        """
+        groups = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
+        groups[list(TERRAIN_GEOM_GROUPS)] = 1
+        vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))
+        dist, _ = batch.ray(np.broadcast_to(cam_pos[:, None], vec.shape), vec, geomgroup=groups,
+                            ids=np.asarray(ids, dtype=np.int32))
+        depth = self._normalised(np.where(dist < 0.0, np.inf, dist))
+        return depth.reshape(-1, 1, self.cfg.height, self.cfg.width).astype(np.float32)
+
+    def _normalised(self, dist: np.ndarray) -> np.ndarray:
+        """Distances along the rays (n, R), ``inf`` for no hit -> normalised z-depth (n, R)."""
+        cfg = self.cfg
+        z = np.where(np.isfinite(dist), dist * self._axis_cos[None, :], cfg.far)
+        return (np.clip(z, cfg.near, cfg.far) - cfg.near) / (cfg.far - cfg.near)
 
     def _exact_on_obstacles(self, batch, cam_pos, vec, t_max, ids, flagged, dist, ground_fn, z_max=None,
                             z_min=None) -> np.ndarray:

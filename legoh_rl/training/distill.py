@@ -48,6 +48,8 @@ class Teacher:
         self.networks.eval()
         self.actor = make_oracle_actor(self.networks)
         self._net = self.actor.module[0]  # encoders + actor MLP, writes z_tea, loc, scale
+        #: observation keys the teacher reads
+        self.in_keys = list(self._net.in_keys)
         head = self.networks.actor.head
         #: the teacher's exploration std, (A,) (its learned std under its ceiling)
         self.action_std = head.log_std.exp().clamp(head.min_std, head.max_std).detach().clone()
@@ -108,7 +110,7 @@ class DAggerMixture(TensorDictModuleBase):
         self.teacher = teacher
         self.beta = 1.0
         self.student_mean = False
-        self.in_keys = list(dict.fromkeys([*student_policy.in_keys, *teacher._net.in_keys]))
+        self.in_keys = list(dict.fromkeys([*student_policy.in_keys, *teacher.in_keys]))
         self.out_keys = list(dict.fromkeys([*student_policy.out_keys, "action", "teacher_acted"]))
         self._gen = torch.Generator().manual_seed(int(seed))
 
@@ -119,8 +121,7 @@ class DAggerMixture(TensorDictModuleBase):
         acted = torch.zeros(td.batch_size, dtype=torch.bool, device=td.device)
         if self.beta > 0.0:
             acted = torch.rand(td.batch_size, generator=self._gen).to(td.device) < self.beta
-            with torch.no_grad():
-                teacher_action = self.teacher._net(td.select(*self.teacher._net.in_keys).copy())["loc"]
+            teacher_action = self.teacher.label(td.select(*self.teacher.in_keys).copy())["action_tea"]
             action = td.get("action")
             td.set("action", torch.where(acted[..., None], teacher_action.to(action.dtype), action))
         td.set("teacher_acted", acted)
