@@ -267,3 +267,22 @@ def test_only_positive_rewards_clips_the_total_not_the_terms():
         expect = terms.clamp_min(0.0) if clip else terms  # no termination term by default
         torch.testing.assert_close(nxt["reward"], expect, rtol=1e-5, atol=1e-6)
         assert (terms < 0).any()
+
+
+@pytest.mark.parametrize("robot", ["h1", "g1"])
+def test_gait_terms_read_foot_lift_and_slip(robot):
+    env = make(robot=robot, n=2, **quiet(reward_overrides={"feet_slip": -1.0, "feet_clearance": -1.0}))
+    env.reset()
+    for _ in range(15):  # settle onto the flat ground
+        nxt = act(env)
+    s = env._read_state()
+    assert s["contact"].all()
+    np.testing.assert_allclose(s["foot_lift"], 0.0, atol=0.01)  # foot_rest_height is the standing height
+    assert np.abs(nxt["reward_terms", "feet_slip"].numpy()).max() < 0.05 * env.dt
+    # slide world 0 by 5 cm between two control steps: its feet move ~0.05 / dt while in contact
+    env.worlds.qpos[0, 0] += 0.05
+    env.worlds.batch.forward(np.array([0]))
+    nxt = act(env)
+    slip = -nxt["reward_terms", "feet_slip"].numpy() / env.dt
+    assert slip[0] == pytest.approx(2 * 0.05 / env.dt, rel=0.1)
+    assert slip[1] < 0.05

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from legoh_rl.envs.rewards import (
+    EXTRA_WEIGHTS,
     PAPER_WEIGHTS,
     REWARD_FUNCTIONS,
     RewardState,
@@ -34,8 +35,8 @@ def state(**kw):
 
 
 def test_every_paper_term_has_a_function():
-    assert set(PAPER_WEIGHTS) | {"alive", "termination"} == set(REWARD_FUNCTIONS)
-    assert "alive" not in reward_weights() and "termination" not in reward_weights()  # off by default
+    assert set(PAPER_WEIGHTS) | set(EXTRA_WEIGHTS) == set(REWARD_FUNCTIONS)
+    assert not set(EXTRA_WEIGHTS) & set(reward_weights())  # the extras are off by default
 
 
 def test_termination_added_after_the_positive_clip():
@@ -129,3 +130,25 @@ def test_weights_per_robot_and_dt_scaling():
 def test_unknown_override_lists_terms():
     with pytest.raises(ValueError, match=r"unknown reward term 'speed'.*tracking_yaw"):
         reward_weights(overrides={"speed": 1.0})
+
+
+def test_feet_clearance_wants_moving_feet_lifted():
+    # world 0: left foot moving at 4 m/s on the ground (lift 0), right foot still; world 1: left foot
+    # moving at 1 m/s lifted exactly the swing height, right foot moving at 0.25 m/s lifted 0.3 m
+    s = state(foot_lift=np.array([[0.0, 0.2], [0.1, 0.3]]),
+              foot_vel_xy=np.array([[[0.0, 4.0], [0.0, 0.0]], [[0.6, 0.8], [0.25, 0.0]]]), swing_height=0.1)
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_clearance"](s), [0.01 * 2.0, 0.04 * 0.5])
+
+
+def test_feet_slip_counts_sliding_feet_in_contact():
+    # world 0: left foot on the ground sliding at 0.5 m/s, right foot in the air at 2 m/s (ignored)
+    s = state(feet_contact=np.array([[True, False], [True, True]]),
+              foot_vel_xy=np.array([[[0.3, 0.4], [2.0, 0.0]], [[0.0, 0.0], [0.0, -0.1]]]))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_slip"](s), [0.5, 0.1])
+
+
+def test_gait_terms_name_missing_fields():
+    with pytest.raises(ValueError, match="foot_lift"):
+        REWARD_FUNCTIONS["feet_clearance"](state(foot_vel_xy=np.zeros((2, 2, 2))))
+    with pytest.raises(ValueError, match="feet_contact"):
+        REWARD_FUNCTIONS["feet_slip"](state(foot_vel_xy=np.zeros((2, 2, 2))))

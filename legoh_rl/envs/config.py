@@ -41,6 +41,7 @@ class HikingEnvConfig:
         num_threads: physics threads (None = all usable CPUs).
         action_clip: actions are clipped to [-clip, clip] (the action spec's bounds).
         spawn_jitter_xy, spawn_jitter_yaw: random spawn offsets in training (m, rad).
+        swing_height: target lift of a moving foot for the ``feet_clearance`` term, m.
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
@@ -77,6 +78,7 @@ class HikingEnvConfig:
     action_clip: float = 5.0
     spawn_jitter_xy: float = 0.2
     spawn_jitter_yaw: float = 0.3
+    swing_height: float = 0.1
     reward_overrides: dict[str, float] = field(default_factory=dict)
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
@@ -92,7 +94,7 @@ class HikingEnvConfig:
             if not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         for name in ("cmd_speed", "episode_length_s", "eval_episode_length_s", "goal_radius",
-                     "eval_goal_radius", "goal_reach_radius", "timestep", "action_clip"):
+                     "eval_goal_radius", "goal_reach_radius", "timestep", "action_clip", "swing_height"):
             value = getattr(self, name)
             if not value > 0:
                 raise ValueError(f"{name} must be positive, got {value!r}")

@@ -43,6 +43,7 @@ from legoh_rl.envs.sensors import (
     world_to_yaw_frame,
     yaw_from_quat,
 )
+from legoh_rl.envs.threads import torch_threads
 
 __all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
 
@@ -166,6 +167,7 @@ class HikingEnv(EnvBase):
         self.torques_prev = np.zeros((N, A))
         self.feet_air_time = np.zeros((N, 2))
         self.last_contact = np.zeros((N, 2), dtype=bool)
+        self.feet_xy_prev = np.zeros((N, 2, 2))
         self.depth = None
         if self.camera is not None:
             c = self.cfg.depth_camera
@@ -339,6 +341,7 @@ class HikingEnv(EnvBase):
         qpos[:, 6] = np.sin(yaw / 2)
         self.randomizer.randomize(ids, self.rng)
         self.worlds.reset(ids, qpos=qpos)
+        self.feet_xy_prev[ids] = self.worlds.xpos[ids][:, self.built.foot_body_ids, :2]
 
         self.episode_step[ids] = 0
         self.action[ids] = 0.0
@@ -396,8 +399,10 @@ class HikingEnv(EnvBase):
         foot_force = np.stack([sd[:, a + 1 : a + 4] for a in b.foot_sensor_adr], axis=1)
         pen_force = np.stack([sd[:, a + 1 : a + 4] for a in b.penalised_sensor_adr], axis=1)
         contact = np.linalg.norm(foot_force, axis=-1) > CONTACT_FORCE_THRESHOLD
-        feet_xy = w.xpos[:, b.foot_body_ids, :2]
+        feet_pos = w.xpos[:, b.foot_body_ids]
+        feet_xy = feet_pos[..., :2]
         foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
+        feet_ground = self.trails.height_at(feet_xy.reshape(-1, 2)).reshape(-1, 2)
         ground = self.trails.height_at(pos[:, :2])
         goal_vec = self.end[:, :2] - pos[:, :2]
         return {
@@ -408,6 +413,7 @@ class HikingEnv(EnvBase):
             "foot_force": foot_force, "pen_force": pen_force, "contact": contact,
             "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
             "goal_vec": goal_vec, "goal_dist": np.linalg.norm(goal_vec, axis=1),
+            "feet_xy": feet_xy.copy(), "foot_lift": feet_pos[..., 2] - feet_ground - self.robot.foot_rest_height,
         }
 
     def _advance_goals(self, state: dict) -> None:
@@ -438,6 +444,8 @@ class HikingEnv(EnvBase):
         air_time = self.feet_air_time.copy()
         self.feet_air_time *= ~contact_filt
         self.last_contact = s["contact"]
+        foot_vel_xy = (s["feet_xy"] - self.feet_xy_prev) / self.dt
+        self.feet_xy_prev[:] = s["feet_xy"]
         return RewardState(
             lin_vel_w=s["lin_vel_w"], ang_vel_b=s["ang_vel_b"], gravity_b=s["gravity_b"],
             goal_dir_w=s["goal_dirs_w"][:, 0], yaw=s["yaw"],
@@ -451,6 +459,8 @@ class HikingEnv(EnvBase):
             terrain_level=self.trails.tile_level[self.tile], base_height=s["base_height"],
             base_height_target=self.robot.base_height_target, goal_dist=s["goal_dist"],
             reach_radius=self.cfg.reach_radius, dt=self.dt,
+            feet_contact=s["contact"], foot_lift=s["foot_lift"], foot_vel_xy=foot_vel_xy,
+            swing_height=self.cfg.swing_height,
         )
 
     def _render_depth(self, which: np.ndarray) -> None:
@@ -461,14 +471,15 @@ class HikingEnv(EnvBase):
         # camera pose at the current state (kinematics of the last call)
         pos = self.worlds.cam_xpos[ids, cam]
         mat = self.worlds.cam_xmat[ids, cam].reshape(-1, 3, 3)
-        self.depth[ids] = self.camera.render(
-            self.worlds.batch, pos, mat, ids,
-            getattr(self.trails, "height_at_t", self.trails.height_at),
-            getattr(self.trails, "ground_height_at_t", self.trails.ground_height_at),
-            self.rng,
-            z_max=self.trails.max_height_near(pos[:, :2]) if hasattr(self.trails, "max_height_near") else None,
-            z_min=self.trails.min_height_near(pos[:, :2]) if hasattr(self.trails, "min_height_near") else None,
-        )
+        with torch_threads(self.worlds.num_threads):  # the physics threads' cores are free now
+            self.depth[ids] = self.camera.render(
+                self.worlds.batch, pos, mat, ids,
+                getattr(self.trails, "height_at_t", self.trails.height_at),
+                getattr(self.trails, "ground_height_at_t", self.trails.ground_height_at),
+                self.rng,
+                z_max=self.trails.max_height_near(pos[:, :2]) if hasattr(self.trails, "max_height_near") else None,
+                z_min=self.trails.min_height_near(pos[:, :2]) if hasattr(self.trails, "min_height_near") else None,
+            )
 
     def _observations(self, s: dict) -> dict:
         yaw = s["yaw"]

@@ -23,7 +23,11 @@ Conventions (N worlds, A leg joints):
   edge cell; ``terrain_level`` (N,) int;
 * ``base_height`` (N,) pelvis height above the terrain under it, ``base_height_target`` float;
 * ``goal_dist`` (N,) distance to the trail end P_B; ``reach_radius`` float;
-* ``fell`` (N,) bool, the episode ends by a fall at this step.
+* ``fell`` (N,) bool, the episode ends by a fall at this step;
+* gait shaping (optional, read only by ``feet_clearance`` and ``feet_slip``): ``feet_contact``
+  (N, 2) bool, ``foot_lift`` (N, 2) height of each foot above the terrain under it minus its height
+  when standing, m, ``foot_vel_xy`` (N, 2, 2) horizontal foot velocities (world frame), m/s;
+  ``swing_height`` the target lift of a moving foot, m.
 
 Beyond the paper's table, two "basic elements" of the legged_gym family (the paper adds basic
 terms from Extreme Parkour and Humanoid-Gym without listing them) are available with weight 0
@@ -31,6 +35,11 @@ by default: ``alive`` (+1 per step) and ``termination`` (1 on a fall). The oracl
 them on: without a survival signal a humanoid learning from scratch first finds the "dive
 forward" optimum (a few steps of goal-velocity reward, then a fall). Like legged_gym,
 ``termination`` is added after the ``only_positive_rewards`` clip so that it is never clipped away.
+
+Two clock-free gait-shaping terms of the same family, also weight 0 by default, counter the
+shuffle a humanoid falls into when only the table shapes its gait: ``feet_clearance`` (a foot
+that moves horizontally should be lifted ``swing_height``, as Walk-These-Ways' clearance term
+without its gait clock) and ``feet_slip`` (a foot on the ground should not slide, Humanoid-Gym).
 """
 
 from __future__ import annotations
@@ -84,6 +93,16 @@ class RewardState:
     reach_radius: float
     dt: float
     fell: np.ndarray | None = None
+    feet_contact: np.ndarray | None = None
+    foot_lift: np.ndarray | None = None
+    foot_vel_xy: np.ndarray | None = None
+    swing_height: float = 0.1
+
+    def require(self, *names: str) -> None:
+        """Raise ``ValueError`` naming the optional fields in ``names`` that are unset."""
+        missing = [n for n in names if getattr(self, n) is None]
+        if missing:
+            raise ValueError(f"this reward term needs RewardState fields {missing}, which are None")
 
 
 def reward_tracking_goal_vel(s: RewardState) -> np.ndarray:
@@ -183,6 +202,19 @@ def reward_dof_pos_limits(s: RewardState) -> np.ndarray:
     return np.sum(low + up, axis=1)
 
 
+def reward_feet_clearance(s: RewardState) -> np.ndarray:
+    """sum over feet of (lift - swing_height)^2 * sqrt(|v_xy|): moving feet should be lifted."""
+    s.require("foot_lift", "foot_vel_xy")
+    speed = np.linalg.norm(s.foot_vel_xy, axis=-1)
+    return np.sum((s.foot_lift - s.swing_height) ** 2 * np.sqrt(speed), axis=1)
+
+
+def reward_feet_slip(s: RewardState) -> np.ndarray:
+    """sum over feet in contact of |v_xy|: feet on the ground should not slide (a shuffle does)."""
+    s.require("feet_contact", "foot_vel_xy")
+    return np.sum(np.linalg.norm(s.foot_vel_xy, axis=-1) * s.feet_contact, axis=1)
+
+
 def reward_alive(s: RewardState) -> np.ndarray:
     """1 per step (not in the paper's table; weight 0 unless set)."""
     return np.ones(s.q.shape[0])
@@ -222,7 +254,7 @@ PAPER_WEIGHTS: dict[str, float] = {
 }
 STUDENT_ONLY = frozenset({"pn_distance"})
 # legged_gym "basic elements", not in the paper's table: off unless a recipe sets them
-EXTRA_WEIGHTS: dict[str, float] = {"alive": 0.0, "termination": 0.0}
+EXTRA_WEIGHTS: dict[str, float] = {"alive": 0.0, "termination": 0.0, "feet_clearance": 0.0, "feet_slip": 0.0}
 # added after the only_positive_rewards clip
 AFTER_CLIP = frozenset({"termination"})
 

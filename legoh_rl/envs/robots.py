@@ -80,6 +80,8 @@ class RobotSpec:
         camera_fovy_deg: vertical (= horizontal, square image) field of view, degrees.
         base_height_target: target pelvis height for the base-height reward, m.
         spawn_height: pelvis height above the ground at spawn, m (default pose, feet just clear).
+        foot_rest_height: height of a foot body's origin above flat ground when the robot stands
+            on it, m (measured in simulation; the zero of the clearance reward's foot lift).
         action_scale: q* = q_default + action_scale * action.
         reward_weights: weights of the paper's reward table that differ for this robot.
     """
@@ -103,6 +105,7 @@ class RobotSpec:
     camera_fovy_deg: float
     base_height_target: float
     spawn_height: float
+    foot_rest_height: float
     action_scale: float = 0.25
     reward_weights: dict[str, float] = field(default_factory=dict)
 
@@ -156,6 +159,7 @@ _H1 = RobotSpec(
     camera_fovy_deg=58.0,
     base_height_target=1.05,
     spawn_height=1.04,
+    foot_rest_height=0.065,
     reward_weights={"feet_air_time": 1.0, "base_height": -100.0, "dof_pos_limits": 0.0},
 )
 
@@ -192,6 +196,7 @@ _G1 = RobotSpec(
     camera_fovy_deg=58.0,
     base_height_target=0.78,
     spawn_height=0.80,
+    foot_rest_height=0.035,
     reward_weights={"feet_air_time": 0.5, "base_height": -35.0, "dof_pos_limits": -5.0},
 )
 

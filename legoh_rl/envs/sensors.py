@@ -134,12 +134,13 @@ class DepthCamera:
         t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
         # 1) march every ray against the surface map (ground + rasterised obstacle tops)
         dist = march_ground(cam_pos, vec, t_max, surface_fn, samples=self.cfg.march_samples, z_max=z_max, z_min=z_min)
-        # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march
-        hit_xy = cam_pos[:, None, :2] + np.where(np.isfinite(dist), dist, 0.0)[..., None] * vec[..., :2]
-        flat_xy = torch.as_tensor(hit_xy.reshape(-1, 2), dtype=torch.float32)
-        rise = torch_height_fn(surface_fn)(flat_xy) - torch_height_fn(ground_fn)(flat_xy)
-        on_obstacle = rise.numpy().reshape(dist.shape) > 0.02
-        on_obstacle &= np.isfinite(dist)
+        # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march. The march
+        # stopped on the surface, so the ray's height there is the surface height: one lookup.
+        hit = np.isfinite(dist)
+        t_hit = np.where(hit, dist, 0.0)
+        hit_xyz = cam_pos[:, None, :] + t_hit[..., None] * vec
+        ground = torch_height_fn(ground_fn)(torch.as_tensor(hit_xyz[..., :2].reshape(-1, 2), dtype=torch.float32))
+        on_obstacle = hit & (hit_xyz[..., 2] - ground.numpy().reshape(dist.shape) > 0.02)
         if on_obstacle.any():
             dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn,
                                             z_max, z_min)
@@ -178,13 +179,16 @@ class DepthCamera:
                             z_min=None) -> np.ndarray:
         """Exact distances for the ``flagged`` (n, R) rays.
 
-        Worlds are grouped by their number of flagged rays into power-of-two buckets; each bucket
-        is one padded ``Batch.ray`` call (at most ~13 calls, never one per world), so a world that
-        faces a forest does not make every other world cast thousands of rays.
+        The obstacle rays: worlds are grouped by their number of flagged rays into power-of-two
+        buckets; each bucket is one padded ``Batch.ray`` call (at most ~13 calls, never one per
+        world), so a world that faces a forest does not make every other world cast thousands of
+        rays. The bare-ground march: one call over all flagged rays, each starting where it met
+        the surface (the bare ground lies at or below the surface).
         """
         out = dist.copy()
         counts = flagged.sum(axis=1)
         worlds = np.flatnonzero(counts)
+        obstacle = np.full(dist.shape, np.inf)
         buckets = np.ceil(np.log2(counts[worlds])).astype(np.int64)
         for b in np.unique(buckets):
             sel = worlds[buckets == b]
@@ -192,15 +196,15 @@ class DepthCamera:
             order = np.argsort(~flagged[sel], axis=1, kind="stable")[:, :k]  # flagged rays first
             valid = np.arange(k)[None, :] < counts[sel, None]
             sub_vec = np.take_along_axis(vec[sel], order[..., None], axis=1)
-            sub_pnt = np.broadcast_to(cam_pos[sel, None, :], sub_vec.shape)
-            obs, _ = batch.ray(sub_pnt, sub_vec, geomgroup=self._obstacle_groups, flg_static=True,
-                               ids=ids[sel].astype(np.int32))
-            ground = march_ground(cam_pos[sel], sub_vec, np.take_along_axis(t_max[sel], order, axis=1), ground_fn,
-                                  samples=self.cfg.march_samples, z_max=None if z_max is None else z_max[sel],
-                                  z_min=None if z_min is None else z_min[sel])
-            exact = np.minimum(np.where(obs < 0.0, np.inf, obs), ground)
+            obs, _ = batch.ray(np.broadcast_to(cam_pos[sel, None, :], sub_vec.shape), sub_vec,
+                               geomgroup=self._obstacle_groups, flg_static=True, ids=ids[sel].astype(np.int32))
             rows = np.repeat(sel, k).reshape(sel.size, k)
-            out[rows[valid], order[valid]] = exact[valid]
+            obstacle[rows[valid], order[valid]] = np.where(obs < 0.0, np.inf, obs)[valid]
+        w, r = np.nonzero(flagged)
+        ground = march_ground(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
+                              samples=self.cfg.march_samples, z_max=None if z_max is None else z_max[w],
+                              z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
+        out[w, r] = np.minimum(obstacle[w, r], ground[:, 0])
         return out
 
 
@@ -213,6 +217,7 @@ def march_ground(
     refine: int = 3,
     z_max: np.ndarray | None = None,
     z_min: np.ndarray | None = None,
+    t_min: np.ndarray | None = None,
 ) -> np.ndarray:
     """First intersection of rays with a height map, vectorised over every ray (torch, float32).
 
@@ -235,6 +240,7 @@ def march_ground(
         refine: regula-falsi iterations inside the bracket.
         z_max: (n,) upper bound of the terrain height each world's rays can meet, or None.
         z_min: (n,) lower bound of that terrain height, or None.
+        t_min: (n, R) distances before which no ray can hit (the march starts there), or None.
 
     Returns:
         (n, R) float64 distance to the hit along each ray; ``inf`` where the ray stays above.
@@ -253,6 +259,8 @@ def march_ground(
         t0 = torch.where(down, (above * inv_down).clamp_min(0.0), t0)
         t0 = torch.where(~down & (above > 0.0), tm, t0)  # level/upward rays above all terrain: no hit
         t0 = torch.minimum(t0, tm)
+    if t_min is not None:
+        t0 = torch.minimum(torch.maximum(t0, torch.as_tensor(np.asarray(t_min, dtype=np.float32))), tm)
     if z_min is not None:  # below z_min the ray is under all terrain: the hit came before
         depth = oz - torch.as_tensor(np.asarray(z_min, dtype=np.float32))[:, None] + 1e-3
         tm = torch.where(down, torch.minimum(tm, depth.clamp_min(0.0) * inv_down), tm)
