@@ -30,10 +30,11 @@ from torchrl.envs import EnvBase
 from legoh_rl.envs.config import HikingEnvConfig
 from legoh_rl.envs.curriculum import Curriculum
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
+from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.randomization import DomainRandConfig, DomainRandomizer
 from legoh_rl.envs.rewards import RewardState, compute_rewards, reward_weights
-from legoh_rl.envs.robots import build_model, get_robot_spec
+from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
 from legoh_rl.envs.sensors import (
     DepthCamera,
     quat_to_rotmat,
@@ -123,7 +124,10 @@ class HikingEnv(EnvBase):
         dr_cfg = DomainRandConfig.off() if cfg.is_eval else cfg.domain_rand
         self.randomizer = DomainRandomizer(dr_cfg, self.worlds)
         self.weights = reward_weights(self.robot.reward_weights, cfg.reward_overrides, student=cfg.mode != "oracle")
-        self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg) if cfg.depth_enabled else None
+        self.camera = None
+        if cfg.depth_enabled:  # obstacles are static and the same in every world: one caster
+            caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
+            self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg, obstacle_caster=caster)
         self.scandot_xy = scandot_offsets()
         self.rng = np.random.default_rng(cfg.seed)
         self.global_steps = 0

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from legoh_rl.envs.height_map import as_grid_sampler, torch_height_fn
+from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, TERRAIN_GEOM_GROUPS
 
 __all__ = [
@@ -72,10 +73,17 @@ class DepthCamera:
         cfg: the camera configuration.
         fovy_deg: vertical field of view (the model camera's ``fovy``); the image is square in
             angle when height == width.
+        obstacle_caster: exact ray caster of the obstacle geoms (group 1, static, identical in
+            every world), e.g. ``ObstacleRayCaster.from_model(model)``; without one the obstacle
+            rays go through ``Batch.ray`` (several times slower: it tests every obstacle). Also
+            settable afterwards as the attribute ``obstacle_caster`` (``None`` restores
+            ``Batch.ray``).
     """
 
-    def __init__(self, cfg: DepthCameraConfig, fovy_deg: float) -> None:
+    def __init__(self, cfg: DepthCameraConfig, fovy_deg: float,
+                 obstacle_caster: ObstacleRayCaster | None = None) -> None:
         self.cfg = cfg
+        self.obstacle_caster = obstacle_caster
         tan_y = math.tan(math.radians(fovy_deg) / 2.0)
         tan_x = tan_y * cfg.width / cfg.height
         # pixel centres; row 0 is the top of the image, column 0 the left
@@ -105,10 +113,11 @@ class DepthCamera:
 
         Every ray is first marched (:func:`march_ground`) against the surface height map, where
         obstacles appear as their rasterised tops. Rays whose hit lies on an obstacle cell are
-        then resolved exactly: ``Batch.ray`` against the obstacle geoms (group 1), and a march
-        against the bare ground (group 0) for rays that pass beside them. MuJoCo's own
-        ray-heightfield test scans every cell in the bounding rectangle of the ray's path,
-        hundreds of cells per ray on a trail grid, which made depth 40x slower than physics.
+        then resolved exactly: the obstacle caster (or ``Batch.ray`` without one) against the
+        obstacle geoms (group 1), and a march against the bare ground (group 0) for rays that pass
+        beside them. MuJoCo's own ray-heightfield test scans every cell in the bounding rectangle
+        of the ray's path, hundreds of cells per ray on a trail grid, which made depth 40x slower
+        than physics.
 
         Args:
             batch: the ``mujoco.batch.Batch`` of the worlds.
@@ -179,16 +188,31 @@ class DepthCamera:
                             z_min=None) -> np.ndarray:
         """Exact distances for the ``flagged`` (n, R) rays.
 
-        The obstacle rays: worlds are grouped by their number of flagged rays into power-of-two
-        buckets; each bucket is one padded ``Batch.ray`` call (at most ~13 calls, never one per
-        world), so a world that faces a forest does not make every other world cast thousands of
-        rays. The bare-ground march: one call over all flagged rays, each starting where it met
-        the surface (the bare ground lies at or below the surface).
+        The obstacle rays: with an obstacle caster, one call over all flagged rays. Without one,
+        ``Batch.ray``: worlds are grouped by their number of flagged rays into power-of-two
+        buckets; each bucket is one padded call (at most ~13 calls, never one per world), so a
+        world that faces a forest does not make every other world cast thousands of rays. The
+        bare-ground march: one call over all flagged rays, each starting where it met the surface
+        (the bare ground lies at or below the surface).
         """
         out = dist.copy()
+        w, r = np.nonzero(flagged)
+        if self.obstacle_caster is not None:
+            obstacle = self.obstacle_caster.cast(cam_pos[w], vec[w, r], t_max[w, r])
+        else:
+            obstacle = self._batch_ray_obstacles(batch, cam_pos, vec, ids, flagged)[w, r]
+        ground = march_ground(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
+                              samples=self.cfg.march_samples, z_max=None if z_max is None else z_max[w],
+                              z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
+        out[w, r] = np.minimum(obstacle, ground[:, 0])
+        return out
+
+    def _batch_ray_obstacles(self, batch, cam_pos, vec, ids, flagged) -> np.ndarray:
+        """``Batch.ray`` distances to the obstacles of the ``flagged`` (n, R) rays, bucketed by
+        world (see :meth:`_exact_on_obstacles`); (n, R) with ``inf`` for misses and unflagged."""
         counts = flagged.sum(axis=1)
         worlds = np.flatnonzero(counts)
-        obstacle = np.full(dist.shape, np.inf)
+        obstacle = np.full(flagged.shape, np.inf)
         buckets = np.ceil(np.log2(counts[worlds])).astype(np.int64)
         for b in np.unique(buckets):
             sel = worlds[buckets == b]
@@ -200,12 +224,7 @@ class DepthCamera:
                                geomgroup=self._obstacle_groups, flg_static=True, ids=ids[sel].astype(np.int32))
             rows = np.repeat(sel, k).reshape(sel.size, k)
             obstacle[rows[valid], order[valid]] = np.where(obs < 0.0, np.inf, obs)[valid]
-        w, r = np.nonzero(flagged)
-        ground = march_ground(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
-                              samples=self.cfg.march_samples, z_max=None if z_max is None else z_max[w],
-                              z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
-        out[w, r] = np.minimum(obstacle[w, r], ground[:, 0])
-        return out
+        return obstacle
 
 
 def march_ground(
