@@ -1,6 +1,7 @@
 """Control steps/s of the full HikingEnv vs the physics-only limit of the same worlds.
 
     python benchmarks/env_throughput.py [--seconds 5] [--threads 2] [--robots h1 g1] [--n 64 256]
+        [--modes oracle student] [--march-samples S]
 
 For each robot and N: oracle mode (no depth) and student mode (64x64 depth, cast every 5th
 step), beside the physics-only limit measured in the same run (the same model and worlds
@@ -20,6 +21,7 @@ import torch
 from tensordict import TensorDict
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.sensors import DepthCameraConfig
 
 
 def env_rate(env: HikingEnv, seconds: float) -> float:
@@ -53,14 +55,18 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--robots", nargs="+", default=["h1", "g1"])
     parser.add_argument("--n", nargs="+", type=int, default=[64, 256])
+    parser.add_argument("--modes", nargs="+", default=["oracle", "student"], choices=["oracle", "student"])
+    parser.add_argument("--march-samples", type=int, default=None, help="depth march samples (default: the config's)")
     parser.add_argument("--profile", action="store_true", help="print the top functions of the student run")
     args = parser.parse_args()
     torch.set_num_threads(1)
     print(f"{'robot':5} {'N':>4} {'mode':8} {'env steps/s':>12} {'physics-only':>13} {'ratio':>6}")
     for robot in args.robots:
         for n in args.n:
-            for mode in ("oracle", "student"):
-                cfg = HikingEnvConfig(robot=robot, num_envs=n, mode=mode, num_threads=args.threads, levels=(0, 1, 2))
+            for mode in args.modes:
+                cam = DepthCameraConfig() if args.march_samples is None else DepthCameraConfig(march_samples=args.march_samples)
+                cfg = HikingEnvConfig(robot=robot, num_envs=n, mode=mode, num_threads=args.threads, levels=(0, 1, 2),
+                                      depth_camera=cam)
                 env = HikingEnv(cfg)
                 rate = env_rate(env, args.seconds)
                 if args.profile and mode == "student":

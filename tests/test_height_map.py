@@ -70,3 +70,19 @@ def test_too_few_march_samples_refused():
 
     with pytest.raises(ValueError, match="march_samples must be >= 2, got 1"):
         DepthCameraConfig(march_samples=1)
+
+
+def test_refine_steps_locate_the_hit_on_a_curved_surface():
+    from legoh_rl.envs.sensors import DepthCameraConfig
+
+    x = np.arange(0.0, 8.0, 0.02)
+    hm = HeightMap(np.repeat((0.3 * np.sin(2.0 * x))[:, None], 5, axis=1), origin=(0.0, -0.04), resolution=0.02)
+    pitch = np.linspace(0.3, 1.2, 16)  # 16 rays in the x-z plane, descending from (0.1, 0, 1.5)
+    dirs = np.stack([np.cos(pitch), np.zeros(16), -np.sin(pitch)], axis=1)[None]
+    origin, t_max = np.array([[0.1, 0.0, 1.5]]), np.full((1, 16), 6.0)
+    ref = march_ground(origin, dirs, t_max, hm, samples=4096, refine=3)
+    # 64 samples bracket every first crossing; the refine steps then locate it inside the bracket
+    errs = [np.abs(march_ground(origin, dirs, t_max, hm, samples=64, refine=r) - ref).max() for r in (0, 1, 3)]
+    assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-3
+    with pytest.raises(ValueError, match="march_refine must be >= 0, got -1"):
+        DepthCameraConfig(march_refine=-1)

@@ -44,6 +44,7 @@ class DepthCameraConfig:
         dropout: probability that a pixel reads 0 (missing return, as a stereo camera's holes).
         march_samples: coarse samples per ray of the height-map ray march (see
             :func:`march_ground`): fewer is faster, more resolves thinner features.
+        march_refine: regula-falsi steps that locate the hit inside the bracketing samples.
     """
 
     height: int = 64
@@ -53,12 +54,15 @@ class DepthCameraConfig:
     noise_std: float = 0.0
     dropout: float = 0.0
     march_samples: int = 12
+    march_refine: int = 3
 
     def __post_init__(self) -> None:
         if self.height < 1 or self.width < 1:
             raise ValueError(f"depth resolution must be positive, got {self.height}x{self.width}")
         if self.march_samples < 2:
             raise ValueError(f"march_samples must be >= 2, got {self.march_samples}")
+        if self.march_refine < 0:
+            raise ValueError(f"march_refine must be >= 0, got {self.march_refine}")
         if not 0.0 <= self.near < self.far:
             raise ValueError(f"need 0 <= near < far, got near={self.near}, far={self.far}")
 
@@ -142,7 +146,8 @@ class DepthCamera:
         vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))  # (n, R, 3) world-frame rays
         t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
         # 1) march every ray against the surface map (ground + rasterised obstacle tops)
-        dist = march_ground(cam_pos, vec, t_max, surface_fn, samples=self.cfg.march_samples, z_max=z_max, z_min=z_min)
+        dist = march_ground(cam_pos, vec, t_max, surface_fn, samples=cfg.march_samples, refine=cfg.march_refine,
+                            z_max=z_max, z_min=z_min)
         # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march. The march
         # stopped on the surface, so the ray's height there is the surface height: one lookup.
         hit = np.isfinite(dist)
@@ -202,7 +207,8 @@ class DepthCamera:
         else:
             obstacle = self._batch_ray_obstacles(batch, cam_pos, vec, ids, flagged)[w, r]
         ground = march_ground(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
-                              samples=self.cfg.march_samples, z_max=None if z_max is None else z_max[w],
+                              samples=self.cfg.march_samples, refine=self.cfg.march_refine,
+                              z_max=None if z_max is None else z_max[w],
                               z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
         out[w, r] = np.minimum(obstacle, ground[:, 0])
         return out
@@ -288,9 +294,8 @@ def march_ground(
     t = torch.addcmul(t0[..., None], (tm - t0)[..., None], frac)  # (n, R, S)
     g = _ray_points(og, t, dg)  # (n, R, S, 2)
     f = torch.addcmul(oz[..., None], t, dz[..., None]) - hm.sample_grid(g)
-    below = f <= 0.0
-    hit = below.any(dim=-1)
-    k = below.to(torch.int8).argmax(dim=-1, keepdim=True)  # first sample below the ground
+    hit, k = (f <= 0.0).max(dim=-1, keepdim=True)  # any sample below the ground; the first one
+    hit = hit[..., 0]
     t_hi, f_hi = t.gather(-1, k)[..., 0], f.gather(-1, k)[..., 0]
     prev = (k - 1).clamp_min(0)
     first = k[..., 0] == 0
