@@ -12,14 +12,7 @@ PY=${PYTHON:-python}
 COMMON=(env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=[256,128,64] model.init_std=0.5
         checkpoint.every=10 logger.backend=csv)
 
-stage() {  # stage <n> <total env steps> <overrides...>
-  local n=$1 total=$2
-  shift 2
-  local resume=()
-  if [ "$n" -gt 1 ]; then resume=(checkpoint.resume="$OUT/stage$((n - 1))/last.pt"); fi
-  "$PY" recipes/oracle_ppo.py "${COMMON[@]}" collector.total_frames="$total" checkpoint.dir="$OUT/stage$n" \
-      "${resume[@]}" "$@"
-}
+source recipes/stages.sh  # stage <n> <total env steps> <overrides...>
 
 # 1 (run 4): balance first: slow command, large alive bonus, fall penalty
 stage 1 2703360 env.levels=[0] env.cmd_speed=0.3 "env.reward_overrides={alive: 10.0, termination: -100.0}"

@@ -50,6 +50,13 @@ def _mj_ray(model, data, o, d):
     return np.array([mujoco.mj_ray(model, data, o[i], d[i], GROUPS, 1, -1, gid) for i in range(len(o))])
 
 
+def _assert_same_hits(got, want):
+    """Caster distances ``got`` agree with ``want`` (``inf`` = miss): same hits, within 1e-6 m."""
+    hit = np.isfinite(want)
+    np.testing.assert_array_equal(np.isfinite(got), hit)
+    np.testing.assert_allclose(got[hit], want[hit], rtol=0, atol=1e-6)
+
+
 def _random_rays(caster: ObstacleRayCaster, n: int, seed: int):
     """Origins outside every geom's bounding sphere; half the rays aimed near a geom."""
     rng = np.random.default_rng(seed)
@@ -81,15 +88,13 @@ def test_cast_matches_mj_ray():
     assert 0.3 < np.mean(ref >= 0.0) < 0.9  # plenty of hits and misses
     # unlimited range: every mj_ray hit
     got = caster.cast(o, d, np.full(len(o), np.inf))
-    np.testing.assert_array_equal(np.isfinite(got), ref >= 0.0)
-    np.testing.assert_allclose(got[ref >= 0.0], ref[ref >= 0.0], rtol=0, atol=1e-6)
+    _assert_same_hits(got, np.where(ref >= 0.0, ref, np.inf))
     # random range: hits beyond t_max are misses
     rng = np.random.default_rng(2)
     t_max = rng.uniform(0.0, 4.0, size=len(o))
     got = caster.cast(o, d, t_max)
     want = np.where((ref >= 0.0) & (ref <= t_max), ref, np.inf)
-    np.testing.assert_array_equal(np.isfinite(got), np.isfinite(want))
-    np.testing.assert_allclose(got[np.isfinite(want)], want[np.isfinite(want)], rtol=0, atol=1e-6)
+    _assert_same_hits(got, want)
     # every geom kind is hit somewhere
     gid = np.zeros(1, dtype=np.int32)
     hit_geoms = set()
@@ -124,8 +129,7 @@ def test_non_unit_directions_measure_in_units_of_the_direction():
     d = d * np.random.default_rng(4).uniform(0.2, 3.0, size=(len(d), 1))
     ref = _mj_ray(m, data, o, d)
     got = caster.cast(o, d, np.full(len(o), np.inf))
-    np.testing.assert_array_equal(np.isfinite(got), ref >= 0.0)
-    np.testing.assert_allclose(got[ref >= 0.0], ref[ref >= 0.0], rtol=0, atol=1e-6)
+    _assert_same_hits(got, np.where(ref >= 0.0, ref, np.inf))
 
 
 def test_origin_inside_reports_the_exit_like_mj_ray():

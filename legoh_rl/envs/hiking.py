@@ -406,8 +406,9 @@ class HikingEnv(EnvBase):
         feet_pos = w.xpos[:, b.foot_body_ids]
         feet_xy = feet_pos[..., :2]
         foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
-        feet_ground = self.trails.height_at(feet_xy.reshape(-1, 2)).reshape(-1, 2)
-        ground = self.trails.height_at(pos[:, :2])
+        # terrain under the base and under each foot, one lookup: (N,) then (N, 2)
+        heights = self.trails.height_at(np.concatenate([pos[:, :2], feet_xy.reshape(-1, 2)]))
+        ground, feet_ground = heights[: pos.shape[0]], heights[pos.shape[0] :].reshape(-1, 2)
         goal_vec = self.end[:, :2] - pos[:, :2]
         return {
             "pos": pos, "rot": rot, "gravity_b": gravity_b, "roll": roll, "pitch": pitch, "yaw": yaw,

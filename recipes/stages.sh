@@ -1,0 +1,13 @@
+# Shared by the staged oracle scripts (oracle_h1_stages.sh, oracle_g1_stages.sh); source it after
+# setting OUT (output root), PY (python) and COMMON (overrides every stage shares).
+#
+#   stage <n> <total env steps> <overrides...>
+# runs recipes/oracle_ppo.py into $OUT/stage<n>, resuming $OUT/stage<n-1>/last.pt when n > 1.
+stage() {
+  local n=$1 total=$2
+  shift 2
+  local resume=()
+  if [ "$n" -gt 1 ]; then resume=(checkpoint.resume="$OUT/stage$((n - 1))/last.pt"); fi
+  "$PY" recipes/oracle_ppo.py "${COMMON[@]}" collector.total_frames="$total" checkpoint.dir="$OUT/stage$n" \
+      "${resume[@]}" "$@"
+}
