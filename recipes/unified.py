@@ -31,7 +31,7 @@ from tqdm import tqdm
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
-from legoh_rl.training.builders import make_env, policy_meta, require_positive
+from legoh_rl.training.builders import gait_kwargs, make_env, policy_meta, require_positive
 from legoh_rl.training.checkpoint import (
     check_meta,
     load_checkpoint,
@@ -93,7 +93,7 @@ def build(cfg: DictConfig) -> dict:
     torch.set_num_threads(int(cfg.torch_threads))
     torch.manual_seed(int(cfg.env.seed))
     teacher = Teacher(cfg.teacher, cfg.env.robot)
-    base = make_env(cfg.env, mode="student")
+    base = make_env(cfg.env, mode="student", **gait_kwargs(teacher.meta))  # the teacher's gait clock, if any
     init_std = cfg.student.get("init_std") or float(teacher.action_std.mean())  # null: the teacher's
     student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std))
     env = student_env(base, student)

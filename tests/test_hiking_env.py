@@ -286,3 +286,32 @@ def test_gait_terms_read_foot_lift_and_slip(robot):
     slip = -nxt["reward_terms", "feet_slip"].numpy() / env.dt
     assert slip[0] == pytest.approx(2 * 0.05 / env.dt, rel=0.1)
     assert slip[1] < 0.05
+
+
+def test_gait_clock_in_proprio_and_contact_reward():
+    base = make(n=2, **quiet())
+    env = make(n=2, **quiet(gait_period=0.8, reward_overrides={"gait_contact": 1.0}))
+    check_env_specs(env)
+    assert env.observation_spec["proprio"].shape[-1] == base.observation_spec["proprio"].shape[-1] + 2
+    env.reset()
+    for _ in range(15):
+        nxt = act(env)
+    phase = 15 * env.dt / 0.8  # 0.375 of a period after 15 control steps
+    np.testing.assert_allclose(nxt["proprio"][:, -2:].numpy(),
+                               np.tile([math.sin(2 * math.pi * phase), math.cos(2 * math.pi * phase)], (2, 1)), atol=1e-6)
+    # both feet on the ground at phase 0.375: the left leg is in stance, the right in swing -> 1 of 2
+    assert env._read_state()["contact"].all()
+    np.testing.assert_allclose(nxt["reward_terms", "gait_contact"].numpy(), 1.0 * env.dt, rtol=1e-6)
+    # a reset world's clock starts again at phase 0; the other world's runs on
+    td = env.reset(TensorDict({"_reset": torch.tensor([[True], [False]])}, batch_size=[2]))
+    np.testing.assert_allclose(td["proprio"][0, -2:].numpy(), [0.0, 1.0], atol=1e-6)
+    np.testing.assert_allclose(env.gait_phase(), [0.0, phase])
+
+
+def test_gait_options_refused_when_bad():
+    with pytest.raises(ValueError, match="gait_period must be >= 0.*-1"):
+        HikingEnvConfig(gait_period=-1.0)
+    with pytest.raises(ValueError, match="gait_stance must lie in.*1.0"):
+        HikingEnvConfig(gait_stance=1.0)
+    with pytest.raises(ValueError, match="gait_contact needs a gait clock.*gait_period=0.0"):
+        HikingEnvConfig(reward_overrides={"gait_contact": 1.0})

@@ -152,3 +152,26 @@ def test_gait_terms_name_missing_fields():
         REWARD_FUNCTIONS["feet_clearance"](state(foot_vel_xy=np.zeros((2, 2, 2))))
     with pytest.raises(ValueError, match="feet_contact"):
         REWARD_FUNCTIONS["feet_slip"](state(foot_vel_xy=np.zeros((2, 2, 2))))
+
+
+def test_gait_stance_mask_puts_the_legs_half_a_period_apart():
+    from legoh_rl.envs.rewards import gait_stance_mask
+
+    phase = np.array([0.0, 0.25, 0.52, 0.6, 0.75, 0.99])
+    # left leg: stance while phase < 0.55; right leg: while (phase + 0.5) mod 1 < 0.55
+    np.testing.assert_array_equal(
+        gait_stance_mask(phase, 0.55),
+        [[True, True], [True, False], [True, True], [False, True], [False, True], [False, True]],
+    )
+
+
+def test_gait_contact_counts_feet_that_follow_the_clock():
+    # world 0 at phase 0.25 (left stance, right swing); world 1 at phase 0.52 (double stance)
+    phase = np.array([0.25, 0.52])
+    for contact, expected in (([[True, False], [True, True]], [2.0, 2.0]),
+                              ([[True, True], [False, True]], [1.0, 1.0]),
+                              ([[False, True], [False, False]], [0.0, 0.0])):
+        s = state(feet_contact=np.array(contact), gait_phase=phase, gait_stance=0.55)
+        np.testing.assert_array_equal(REWARD_FUNCTIONS["gait_contact"](s), expected)
+    with pytest.raises(ValueError, match="gait_phase"):
+        REWARD_FUNCTIONS["gait_contact"](state(feet_contact=np.ones((2, 2), bool)))

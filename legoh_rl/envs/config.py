@@ -42,6 +42,11 @@ class HikingEnvConfig:
         action_clip: actions are clipped to [-clip, clip] (the action spec's bounds).
         spawn_jitter_xy, spawn_jitter_yaw: random spawn offsets in training (m, rad).
         swing_height: target lift of a moving foot for the ``feet_clearance`` term, m.
+        gait_period: period of a gait clock, s (0: no clock). When positive, ``proprio`` ends
+            with (sin 2 pi phi, cos 2 pi phi) of the clock phase phi = t / period mod 1 (t the
+            episode time), and the ``gait_contact`` reward term can be used.
+        gait_stance: fraction of the period each foot is meant to be on the ground (the left leg
+            from phase 0, the right from phase 0.5).
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
@@ -79,6 +84,8 @@ class HikingEnvConfig:
     spawn_jitter_xy: float = 0.2
     spawn_jitter_yaw: float = 0.3
     swing_height: float = 0.1
+    gait_period: float = 0.0
+    gait_stance: float = 0.55
     reward_overrides: dict[str, float] = field(default_factory=dict)
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
@@ -98,6 +105,13 @@ class HikingEnvConfig:
             value = getattr(self, name)
             if not value > 0:
                 raise ValueError(f"{name} must be positive, got {value!r}")
+        if not self.gait_period >= 0:
+            raise ValueError(f"gait_period must be >= 0 (0: no gait clock), got {self.gait_period!r}")
+        if not 0.0 < self.gait_stance < 1.0:
+            raise ValueError(f"gait_stance must lie in (0, 1), got {self.gait_stance!r}")
+        if self.reward_overrides.get("gait_contact", 0.0) and not self.gait_period:
+            raise ValueError("reward term gait_contact needs a gait clock: set gait_period > 0 "
+                             f"(got gait_period={self.gait_period!r})")
         if not self.levels:
             raise ValueError("levels must name at least one difficulty level")
 

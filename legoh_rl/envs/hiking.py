@@ -183,7 +183,7 @@ class HikingEnv(EnvBase):
         k = self.cfg.num_goals
         P = 3 + 5 + A
         obs = {
-            "proprio": Unbounded(shape=(N, 3 + 2 + 3 * A + 2), device=dev),
+            "proprio": Unbounded(shape=(N, 3 + 2 + 3 * A + 2 + (2 if self.cfg.gait_period else 0)), device=dev),
             "goal_gps": Unbounded(shape=(N, 2), device=dev),
             "waypoint_gps": Unbounded(shape=(N, 2), device=dev),
             "scandots": Bounded(-1.0, 1.0, shape=(N, self.scandot_xy.shape[0]), device=dev),
@@ -466,7 +466,14 @@ class HikingEnv(EnvBase):
             reach_radius=self.cfg.reach_radius, dt=self.dt,
             feet_contact=s["contact"], foot_lift=s["foot_lift"], foot_vel_xy=foot_vel_xy,
             swing_height=self.cfg.swing_height,
+            gait_phase=self.gait_phase(), gait_stance=self.cfg.gait_stance,
         )
+
+    def gait_phase(self) -> np.ndarray | None:
+        """(N,) phase in [0, 1) of each world's gait clock (episode time / period), or None."""
+        if not self.cfg.gait_period:
+            return None
+        return (self.episode_step * self.dt / self.cfg.gait_period) % 1.0
 
     def _render_depth(self, which: np.ndarray) -> None:
         if self.camera is None or not which.any():
@@ -496,6 +503,7 @@ class HikingEnv(EnvBase):
                 s["dq"] * DOF_VEL_SCALE,
                 self.action,
                 s["contact"].astype(np.float64),
+                *self._gait_clock(),
             ],
             axis=1,
         )
@@ -512,6 +520,14 @@ class HikingEnv(EnvBase):
         if self.depth is not None:
             obs["depth"] = self.depth
         return obs
+
+    def _gait_clock(self) -> list[np.ndarray]:
+        """The proprio's clock columns: [(N, 2) sin/cos of the gait phase], or [] without a clock."""
+        phase = self.gait_phase()
+        if phase is None:
+            return []
+        angle = 2.0 * np.pi * phase
+        return [np.stack([np.sin(angle), np.cos(angle)], axis=1)]
 
     def _to_td(self, obs: dict, reward_terms: dict, episode: dict, info: tuple) -> TensorDict:
         N, dev = self.cfg.num_envs, self.device

@@ -27,7 +27,9 @@ Conventions (N worlds, A leg joints):
 * gait shaping (optional, read only by ``feet_clearance`` and ``feet_slip``): ``feet_contact``
   (N, 2) bool, ``foot_lift`` (N, 2) height of each foot above the terrain under it minus its height
   when standing, m, ``foot_vel_xy`` (N, 2, 2) horizontal foot velocities (world frame), m/s;
-  ``swing_height`` the target lift of a moving foot, m.
+  ``swing_height`` the target lift of a moving foot, m;
+* gait clock (optional, read only by ``gait_contact``): ``gait_phase`` (N,) in [0, 1),
+  ``gait_stance`` the stance fraction of the period.
 
 Beyond the paper's table, two "basic elements" of the legged_gym family (the paper adds basic
 terms from Extreme Parkour and Humanoid-Gym without listing them) are available with weight 0
@@ -40,6 +42,10 @@ Two clock-free gait-shaping terms of the same family, also weight 0 by default, 
 shuffle a humanoid falls into when only the table shapes its gait: ``feet_clearance`` (a foot
 that moves horizontally should be lifted ``swing_height``, as Walk-These-Ways' clearance term
 without its gait clock) and ``feet_slip`` (a foot on the ground should not slide, Humanoid-Gym).
+With a gait clock (``HikingEnvConfig.gait_period``), ``gait_contact`` rewards each foot whose
+contact state matches the clock (stance for the first ``gait_stance`` of its leg's phase, the
+right leg half a period behind the left), as the periodic contact reward of Humanoid-Gym and
+Unitree's RL Gym.
 """
 
 from __future__ import annotations
@@ -56,6 +62,7 @@ __all__ = [
     "reward_weights",
     "EXTRA_WEIGHTS",
     "compute_rewards",
+    "gait_stance_mask",
 ]
 
 EPS = 1e-5
@@ -97,6 +104,8 @@ class RewardState:
     foot_lift: np.ndarray | None = None
     foot_vel_xy: np.ndarray | None = None
     swing_height: float = 0.1
+    gait_phase: np.ndarray | None = None
+    gait_stance: float = 0.55
 
     def require(self, *names: str) -> None:
         """Raise ``ValueError`` naming the optional fields in ``names`` that are unset."""
@@ -215,6 +224,22 @@ def reward_feet_slip(s: RewardState) -> np.ndarray:
     return np.sum(np.linalg.norm(s.foot_vel_xy, axis=-1) * s.feet_contact, axis=1)
 
 
+def gait_stance_mask(phase: np.ndarray, stance: float) -> np.ndarray:
+    """(N, 2) bool: which feet (left, right) the clock puts on the ground at ``phase`` (N,) in [0, 1).
+
+    The left leg's phase is ``phase``, the right leg's ``phase + 0.5`` (mod 1); a leg is in stance
+    while its phase is below ``stance``.
+    """
+    legs = np.stack([phase, (phase + 0.5) % 1.0], axis=1)
+    return legs < stance
+
+
+def reward_gait_contact(s: RewardState) -> np.ndarray:
+    """Number of feet (0-2) whose contact state matches the gait clock's stance/swing pattern."""
+    s.require("feet_contact", "gait_phase")
+    return np.sum(s.feet_contact == gait_stance_mask(s.gait_phase, s.gait_stance), axis=1).astype(np.float64)
+
+
 def reward_alive(s: RewardState) -> np.ndarray:
     """1 per step (not in the paper's table; weight 0 unless set)."""
     return np.ones(s.q.shape[0])
@@ -254,7 +279,9 @@ PAPER_WEIGHTS: dict[str, float] = {
 }
 STUDENT_ONLY = frozenset({"pn_distance"})
 # legged_gym "basic elements", not in the paper's table: off unless a recipe sets them
-EXTRA_WEIGHTS: dict[str, float] = {"alive": 0.0, "termination": 0.0, "feet_clearance": 0.0, "feet_slip": 0.0}
+EXTRA_WEIGHTS: dict[str, float] = {
+    "alive": 0.0, "termination": 0.0, "feet_clearance": 0.0, "feet_slip": 0.0, "gait_contact": 0.0,
+}
 # added after the only_positive_rewards clip
 AFTER_CLIP = frozenset({"termination"})
 

@@ -12,7 +12,7 @@ from legoh_rl.envs.trail_source import validate_categories
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
 
-__all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "require_positive"]
+__all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "gait_kwargs", "require_positive"]
 
 
 def require_positive(section: str, cfg: Mapping, *names: str) -> None:
@@ -39,6 +39,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         seed=int(cfg.get("seed", 0)),
         episode_length_s=float(cfg.get("episode_length_s", 20.0)),
         cmd_speed=float(cfg.get("cmd_speed", 0.8)),
+        gait_period=float(cfg.get("gait_period", 0.0)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
     )
     if not cfg.get("domain_rand", True):
@@ -82,8 +83,18 @@ def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] |
 
 
 def policy_meta(env: HikingEnv, kind: str) -> dict:
-    """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind."""
+    """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind, and
+    the gait clock's period and stance fraction when the env has a clock (older checkpoints, made
+    without one, carry no such fields)."""
     spec = env.observation_spec
     keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" else ())
     layout = {k: tuple(spec[k].shape[1:]) for k in keys}
-    return {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}
+    meta = {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}
+    if env.cfg.gait_period:
+        meta.update(gait_period=env.cfg.gait_period, gait_stance=env.cfg.gait_stance)
+    return meta
+
+
+def gait_kwargs(meta: Mapping) -> dict:
+    """The env config fields that rebuild a checkpoint's gait clock (empty without one)."""
+    return {k: float(meta[k]) for k in ("gait_period", "gait_stance") if k in meta}

@@ -9,7 +9,7 @@ from tensordict.nn import TensorDictModuleBase
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor
-from legoh_rl.training.builders import policy_meta
+from legoh_rl.training.builders import gait_kwargs, policy_meta
 from legoh_rl.training.checkpoint import check_meta, load_checkpoint
 
 __all__ = ["ZeroPolicy", "load_policy", "eval_env"]
@@ -30,11 +30,12 @@ class ZeroPolicy(TensorDictModuleBase):
 
 
 def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
-             trails=None) -> HikingEnv:
-    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds)."""
+             trails=None, **gait) -> HikingEnv:
+    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds); ``gait``:
+    ``gait_period``/``gait_stance`` of a policy trained with a gait clock."""
     cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
                           categories=tuple(protocol.categories), levels=tuple(protocol.levels),
-                          variants=variants, seed=seed, num_threads=num_threads)
+                          variants=variants, seed=seed, num_threads=num_threads, **gait)
     return HikingEnv(cfg, trails=trails)
 
 
@@ -54,7 +55,7 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
     meta = state.get("meta", {})
     kind = meta.get("kind")
     if kind == "oracle":
-        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails)
+        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, **gait_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), checkpoint)
         networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
         networks.load_state_dict(state["networks"])

@@ -81,12 +81,13 @@ def student_env(env: HikingEnv, student: StudentPolicy) -> TransformedEnv:
 
 def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint"):
     """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol``."""
-    from legoh_rl.training.builders import policy_meta
+    from legoh_rl.training.builders import gait_kwargs, policy_meta
     from legoh_rl.training.checkpoint import check_meta
     from legoh_rl.training.policies import eval_env
 
     meta = state["meta"]
-    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails)
+    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails,
+                    **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
     student = make_student(base, meta["perception"], meta["preset"])
     student.perception.load_state_dict(state["perception"])
