@@ -65,6 +65,9 @@ def validate(cfg: DictConfig) -> None:
     require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
     require_positive("checkpoint", cfg.checkpoint, "every")
     require_positive("", cfg, "dagger_epochs")
+    decay = cfg.get("dagger_decay_iters")
+    if decay is not None and not 0 < decay <= cfg.dagger_iters:
+        raise ValueError(f"dagger_decay_iters must lie in (0, dagger_iters={cfg.dagger_iters}], got {decay!r}")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
@@ -124,6 +127,14 @@ def build(cfg: DictConfig) -> dict:
     return p
 
 
+def beta_at(iteration: int, cfg: DictConfig) -> float:
+    """P(teacher acts) at an iteration: ``dagger_beta0`` decayed linearly to 0 over
+    ``dagger_decay_iters`` (default: the whole DAgger phase, ``dagger_iters``). A shorter decay
+    leaves a pure-DAgger stretch where the student acts and the teacher only labels."""
+    decay = cfg.get("dagger_decay_iters") or cfg.dagger_iters
+    return dagger_beta(iteration, float(cfg.dagger_beta0), int(decay))
+
+
 def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
     """One training step on a collected ``[N, T]`` batch; returns mean diagnostics."""
     teacher, student, ppo, gae, dagger, vae, hlm = (p[k] for k in ("teacher", "student", "ppo", "gae", "dagger",
@@ -135,7 +146,7 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
         stats[key] = stats.get(key, 0.0) + float(value.detach() if torch.is_tensor(value) else value)
 
     # masked VAE on the teacher's actions (L_rec), its own optimiser
-    flat = data.reshape(-1)
+    flat = data.select(*vae.in_keys, strict=False).reshape(-1)  # the teacher's actions (and masks), not the depth
     for _ in range(cfg.hlm.vae_steps if cfg.hlm.enabled else 0):
         out = vae(flat[torch.randperm(flat.shape[0])[: min(2048, flat.shape[0])]])
         loss = sum(v for k, v in out.items() if k.startswith("loss_"))
@@ -150,9 +161,15 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
             gae(data)
     n_mb = 0
     params = [q for g in p["optim"].param_groups for q in g["params"]]
+    # One gather per iteration: the worlds in a random order, without the "next" entries the
+    # losses no longer need (GAE is done). Minibatches are then slices (views) of it. Gathering
+    # per minibatch copied ~165 MB of depth stacks into fresh pages each time, ~40% of a CPU
+    # iteration (BENCHMARKS.md, "Unified training").
+    train = data.exclude("next")[torch.randperm(data.shape[0])]
+    size = -(-data.shape[0] // cfg.ppo.num_minibatches)
     for _ in range(cfg.ppo.num_epochs if rl else int(cfg.dagger_epochs)):
-        for idx in torch.randperm(data.shape[0]).chunk(cfg.ppo.num_minibatches):
-            mb = data[idx].clone(False)
+        for start in range(0, data.shape[0], size):
+            mb = train[start : start + size]
             student_pass(p["student"], mb)
             terms = {k: v for k, v in dagger(mb).items() if k.startswith("loss_")}
             if use_hlm:
@@ -193,7 +210,7 @@ def train(cfg: DictConfig) -> dict:
         print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": iteration, "frames": frames}
     behaviour = DAggerMixture(student.policy, p["teacher"], seed=int(cfg.env.seed))
-    behaviour.beta = dagger_beta(iteration, float(cfg.dagger_beta0), int(cfg.dagger_iters))
+    behaviour.beta = beta_at(iteration, cfg)
     behaviour.student_mean = iteration < cfg.dagger_iters
     collector = Collector(env, behaviour, frames_per_batch=fpb, total_frames=remaining,
                           exploration_type=ExplorationType.RANDOM)
@@ -214,7 +231,7 @@ def train(cfg: DictConfig) -> dict:
         stats["train/dagger_beta"] = behaviour.beta
         stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
         iteration += 1
-        behaviour.beta = dagger_beta(iteration, float(cfg.dagger_beta0), int(cfg.dagger_iters))
+        behaviour.beta = beta_at(iteration, cfg)
         behaviour.student_mean = iteration < cfg.dagger_iters
         collector.update_policy_weights_()
         frames += data.numel()

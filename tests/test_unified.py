@@ -136,3 +136,14 @@ def test_student_starts_from_the_teachers_action_std(teacher, tmp_path):
     assert torch.allclose(student_std, torch.full_like(student_std, float(t.action_std.mean())))
     p = unified.build(tiny(teacher, tmp_path, "student.init_std=0.3"))
     assert torch.allclose(p["student"].actor.module[0].module.head.log_std.exp(), torch.tensor(0.3))
+
+
+def test_short_beta_decay_leaves_a_pure_dagger_stretch(teacher, tmp_path):
+    cfg = tiny(teacher, tmp_path / "run", "collector.total_frames=80", "dagger_iters=4", "dagger_decay_iters=1")
+    assert [unified.beta_at(i, cfg) for i in range(5)] == [1.0, 0.0, 0.0, 0.0, 0.0]
+    assert [unified.beta_at(i, tiny(teacher, tmp_path, "dagger_iters=4")) for i in range(3)] == [1.0, 0.75, 0.5]
+    out = unified.train(cfg)
+    # the 2nd batch: the student acted alone (beta 0) and PPO had not joined yet
+    assert out["train/dagger_beta"] == 0.0 and out["train/teacher_acted"] == 0.0 and out["train/phase_rl"] == 0.0
+    with pytest.raises(ValueError, match=r"dagger_decay_iters must lie in \(0, dagger_iters=4\], got 5"):
+        unified.build(tiny(teacher, tmp_path, "dagger_iters=4", "dagger_decay_iters=5"))
