@@ -1,6 +1,7 @@
 """The humanoid hiking benchmark: a checkpoint on the categories x levels protocol.
 
-Prints the six metrics as mean +- std per category and overall (markdown and CSV), saves a plot
+Prints the six metrics as mean +- std per category and overall (markdown and CSV) and per
+level (``table_levels.md``), saves a plot
 of torso trajectories over the trails coloured by time and a short video of a few robots, and
 logs all of it to wandb (offline by default).
 
@@ -62,18 +63,21 @@ def evaluate(cfg: DictConfig) -> dict:
     rows = aggregate(result.episodes)
     table = markdown_table(rows)
     (out_dir / "table.md").write_text(table + "\n")
+    level_table = markdown_table(aggregate(result.episodes, by="level"))
+    (out_dir / "table_levels.md").write_text(level_table + "\n")
     csv_path = write_csv(rows, out_dir / "table.csv")
     plot = plot_trajectories(env, result, out_dir / "trajectories.png")
     video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
     print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
           f"{len(protocol.categories)} categories x {len(protocol.levels)} levels x {protocol.runs} runs)\n")
     print(table)
+    print("\nby level:\n" + level_table)
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(out_dir / "logs"), cfg.logger.project,
                          cfg.logger.online, config=OmegaConf.to_container(cfg, resolve=True))
     for m, (mean, _) in rows["overall"].items():
         logger.log_scalar(f"eval/{m}", mean, step=0)
     _log_media(logger, table, plot, video)
-    artefacts = {"table": str(out_dir / "table.md"), "csv": str(csv_path), "plot": str(plot),
+    artefacts = {"table": str(out_dir / "table.md"), "levels": str(out_dir / "table_levels.md"), "csv": str(csv_path), "plot": str(plot),
                  "video": str(video) if video else None}
     print("\nartefacts:\n" + "\n".join(f"  {k:6} {v}" for k, v in artefacts.items() if v))
     return {"rows": rows, "episodes": result.episodes, **artefacts}

@@ -117,6 +117,15 @@ def test_aggregate_matches_hand_computed_values():
     assert rows["overall"]["success"] == pytest.approx((200 / 3, 100 / 3))
     table = markdown_table(rows)
     assert "| Success Rate (%) | 0.00 ± 0.00 | 75.00 ± 25.00 | 66.67 ± 33.33 |" in table
+    # by level: level 0 SR per run: run 0 (randommix 100, gap 0) 50, run 1 100; level 1: 0, 100
+    levels = aggregate(eps, by="level")
+    assert list(levels) == ["level 0", "level 1", "overall"]
+    assert levels["level 0"]["success"] == pytest.approx((75.0, 25.0))
+    assert levels["level 1"]["success"] == pytest.approx((50.0, 50.0))
+    assert levels["level 1"]["ttf"] == pytest.approx((6.0, 3.0))
+    assert levels["overall"] == rows["overall"]
+    with pytest.raises(ValueError, match="by must be 'category' or 'level', got 'run'"):
+        aggregate(eps, by="run")
 
 
 def test_evaluate_zero_policy_writes_artefacts(tmp_path):
@@ -128,7 +137,8 @@ def test_evaluate_zero_policy_writes_artefacts(tmp_path):
     overall = out["rows"]["overall"]
     assert overall["success"][0] == 0.0 and math.isnan(overall["time_to_reach"][0])
     assert 0.5 < overall["ttf"][0] < 4.0  # a PD hold falls within a few seconds (docs/physics.md)
-    for key in ("table", "csv", "plot"):
+    assert "| metric | level 0 | overall |" in Path(out["levels"]).read_text()
+    for key in ("table", "levels", "csv", "plot"):
         assert Path(out[key]).is_file()
     if out["video"] is not None:  # needs an OpenGL context (EGL/OSMesa)
         assert Path(out["video"]).stat().st_size > 1000

@@ -168,20 +168,31 @@ def _mean(values: list[float]) -> float:
     return float(np.mean(vals)) if vals else math.nan
 
 
-def aggregate(episodes: list[dict]) -> dict[str, dict[str, tuple[float, float]]]:
-    """Mean +- std over runs of each run's per-category mean, per category and overall.
+def aggregate(episodes: list[dict], by: str = "category") -> dict[str, dict[str, tuple[float, float]]]:
+    """Mean +- std over runs of each run's per-group mean, per group and overall.
 
     Time-to-Reach averages successful episodes only (NaN when none succeeded). The std is the
     population std over runs (0 for a single run).
 
+    Args:
+        episodes: :attr:`EvalResult.episodes`.
+        by: ``"category"`` (rows named after the categories) or ``"level"`` (rows
+            ``"level 0"``, ``"level 1"``, ...).
+
     Returns:
-        {row: {metric: (mean, std)}} with one row per category and ``"overall"``.
+        {row: {metric: (mean, std)}} with one row per group and ``"overall"``.
     """
+    if by not in ("category", "level"):
+        raise ValueError(f"by must be 'category' or 'level', got {by!r}")
+
+    def name(value) -> str:
+        return f"level {value}" if by == "level" else str(value)
+
     rows: dict[str, dict[str, tuple[float, float]]] = {}
-    groups = sorted({e["category"] for e in episodes}) + ["overall"]
+    groups = [name(v) for v in sorted({e[by] for e in episodes})] + ["overall"]
     runs = sorted({e["run"] for e in episodes})
     for g in groups:
-        sel = [e for e in episodes if g == "overall" or e["category"] == g]
+        sel = [e for e in episodes if g == "overall" or name(e[by]) == g]
         rows[g] = {}
         for m in METRIC_NAMES:
             per_run = [_mean([e[m] for e in sel if e["run"] == r]) for r in runs]
@@ -191,7 +202,7 @@ def aggregate(episodes: list[dict]) -> dict[str, dict[str, tuple[float, float]]]
 
 
 def markdown_table(rows: dict[str, dict[str, tuple[float, float]]]) -> str:
-    """The aggregate as a markdown table (rows = metrics, columns = categories + overall)."""
+    """The aggregate as a markdown table (rows = metrics, columns = the groups + overall)."""
     cols = list(rows)
     lines = ["| metric | " + " | ".join(cols) + " |", "|---|" + "---|" * len(cols)]
     for m in METRIC_NAMES:
