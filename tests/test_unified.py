@@ -147,3 +147,19 @@ def test_short_beta_decay_leaves_a_pure_dagger_stretch(teacher, tmp_path):
     assert out["train/dagger_beta"] == 0.0 and out["train/teacher_acted"] == 0.0 and out["train/phase_rl"] == 0.0
     with pytest.raises(ValueError, match=r"dagger_decay_iters must lie in \(0, dagger_iters=4\], got 5"):
         unified.build(tiny(teacher, tmp_path, "dagger_iters=4", "dagger_decay_iters=5"))
+
+
+def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
+    ck = tmp_path / "oracle"
+    oracle_ppo.train(cfg_of("oracle_ppo", ENV + ["collector.steps_per_env=8", "collector.total_frames=32",
+                                                 "ppo.num_epochs=1", f"checkpoint.dir={ck}", "env.gait_period=0.7"]))
+    p = unified.build(tiny(ck / "last.pt", tmp_path / "student"))  # the student config names no clock
+    assert p["base"].cfg.gait_period == 0.7 and p["meta"]["gait_period"] == 0.7
+    assert p["base"].observation_spec["proprio"].shape[-1] == 39
+    out = unified.train(tiny(ck / "last.pt", tmp_path / "student", "collector.total_frames=40"))
+    assert out["iteration"] == 1
+    # and its evaluation env is rebuilt with the same clock from the student checkpoint's meta
+    cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'student' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
+                              "robots_per_cell=1", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
+                              "video=false", "logger.backend=csv"])
+    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 1
