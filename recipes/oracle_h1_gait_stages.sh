@@ -6,6 +6,7 @@
 # learned without them does not unlearn when they are added later. Seed 0, 2 CPU cores.
 #
 #   bash recipes/oracle_h1_gait_stages.sh [output root, default outputs/oracle_h1_gait]
+#   FROM_STAGE=2 bash recipes/oracle_h1_gait_stages.sh   # stage 1 done: go on from its checkpoint
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-outputs/oracle_h1_gait}
@@ -13,14 +14,18 @@ PY=${PYTHON:-python}
 COMMON=(env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=[256,128,64]
         model.init_std=0.5 model.max_std=0.5 ppo.entropy_coeff=0.001 checkpoint.every=10 logger.backend=csv
         env.gait_period=0.8)
-# after each stage's reward_overrides (which replaces the whole dict)
-GAIT=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.feet_clearance=-100.0
+# after each stage's reward_overrides (which replaces the whole dict). Stage 1 rewards the clock's
+# contact pattern with weight 2; from stage 2 on it is 5 and the clearance penalty is -20 (at 2 and
+# -100 a first stage 2 kept standing: RESULTS.md, run 11).
+GAIT1=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.feet_clearance=-100.0
+       +env.reward_overrides.feet_slip=-1.0)
+GAIT=(+env.reward_overrides.gait_contact=5.0 +env.reward_overrides.feet_clearance=-20.0
       +env.reward_overrides.feet_slip=-1.0)
 
 source recipes/stages.sh  # stage <n> <total env steps> <overrides...>
 
 # 1: balance first: slow command, large alive bonus, fall penalty
-stage 1 2703360 env.levels=[0] env.cmd_speed=0.3 "env.reward_overrides={alive: 10.0, termination: -100.0}" "${GAIT[@]}"
+stage 1 2703360 env.levels=[0] env.cmd_speed=0.3 "env.reward_overrides={alive: 10.0, termination: -100.0}" "${GAIT1[@]}"
 # 2: walk: faster command, smaller alive bonus
 stage 2 8540160 env.levels=[0] env.cmd_speed=0.5 "env.reward_overrides={alive: 4.0, termination: -100.0}" "${GAIT[@]}"
 # 3: levels 0 and 1 in equal shares, worlds restart there; desired KL 0.02

@@ -3,9 +3,11 @@
 #
 #   stage <n> <total env steps> <overrides...>
 # runs recipes/oracle_ppo.py into $OUT/stage<n>, resuming $OUT/stage<n-1>/last.pt when n > 1.
+# FROM_STAGE=k (environment) skips the stages before k (their checkpoints must exist).
 stage() {
   local n=$1 total=$2
   shift 2
+  if [ "$n" -lt "${FROM_STAGE:-1}" ]; then return 0; fi
   local resume=()
   if [ "$n" -gt 1 ]; then resume=(checkpoint.resume="$OUT/stage$((n - 1))/last.pt"); fi
   "$PY" recipes/oracle_ppo.py "${COMMON[@]}" collector.total_frames="$total" checkpoint.dir="$OUT/stage$n" \
