@@ -315,3 +315,19 @@ def test_gait_options_refused_when_bad():
         HikingEnvConfig(gait_stance=1.0)
     with pytest.raises(ValueError, match="gait_contact needs a gait clock.*gait_period=0.0"):
         HikingEnvConfig(reward_overrides={"gait_contact": 1.0})
+    with pytest.raises(ValueError, match="gait_joint_ref needs a gait clock"):
+        HikingEnvConfig(reward_overrides={"gait_joint_ref": 1.0})
+    with pytest.raises(ValueError, match="gait_amplitude must be >= 0, got -0.1"):
+        HikingEnvConfig(gait_amplitude=-0.1)
+
+
+def test_gait_joint_ref_reads_the_clocks_reference():
+    env = make(n=2, **quiet(gait_period=0.8, gait_amplitude=0.2, reward_overrides={"gait_joint_ref": 1.0}))
+    env.reset()
+    for _ in range(10):  # phase 0.25: the right leg's reference is folded by 0.2 / 0.4 / 0.2
+        nxt = act(env)
+    ref = env.gait_reference()
+    np.testing.assert_allclose(ref - env.q_default, np.tile([0, 0, 0, 0, 0, 0, 0, -0.2, 0.4, -0.2], (2, 1)), atol=1e-9)
+    d = np.linalg.norm(env._read_state()["q"] - ref, axis=1)
+    expected = (np.exp(-2 * d) - 0.2 * np.minimum(d, 0.5)) * env.dt
+    np.testing.assert_allclose(nxt["reward_terms", "gait_joint_ref"].numpy()[:, 0], expected, rtol=1e-5)

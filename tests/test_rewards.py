@@ -154,17 +154,6 @@ def test_gait_terms_name_missing_fields():
         REWARD_FUNCTIONS["feet_slip"](state(foot_vel_xy=np.zeros((2, 2, 2))))
 
 
-def test_gait_stance_mask_puts_the_legs_half_a_period_apart():
-    from legoh_rl.envs.rewards import gait_stance_mask
-
-    phase = np.array([0.0, 0.25, 0.52, 0.6, 0.75, 0.99])
-    # left leg: stance while phase < 0.55; right leg: while (phase + 0.5) mod 1 < 0.55
-    np.testing.assert_array_equal(
-        gait_stance_mask(phase, 0.55),
-        [[True, True], [True, False], [True, True], [False, True], [False, True], [False, True]],
-    )
-
-
 def test_gait_contact_counts_feet_that_follow_the_clock():
     # world 0 at phase 0.25 (left stance, right swing); world 1 at phase 0.52 (double stance)
     phase = np.array([0.25, 0.52])
@@ -175,3 +164,14 @@ def test_gait_contact_counts_feet_that_follow_the_clock():
         np.testing.assert_array_equal(REWARD_FUNCTIONS["gait_contact"](s), expected)
     with pytest.raises(ValueError, match="gait_phase"):
         REWARD_FUNCTIONS["gait_contact"](state(feet_contact=np.ones((2, 2), bool)))
+
+
+def test_gait_joint_ref_rewards_joints_on_the_clocks_reference():
+    ref = np.array([[0.0, 0.0], [0.3, -0.4]])
+    # world 0 on its reference (d = 0 -> 1); world 1 off by (0.3, 0.4): d = 0.5
+    s = state(q=np.array([[0.0, 0.0], [0.0, 0.0]]), gait_ref_q=ref)
+    np.testing.assert_allclose(REWARD_FUNCTIONS["gait_joint_ref"](s), [1.0, math.exp(-1.0) - 0.1])
+    far = state(q=np.array([[2.0, 0.0], [0.0, 0.0]]), gait_ref_q=np.zeros((2, 2)))
+    assert REWARD_FUNCTIONS["gait_joint_ref"](far)[0] == pytest.approx(math.exp(-4.0) - 0.1)  # the clamp at 0.5
+    with pytest.raises(ValueError, match="gait_ref_q"):
+        REWARD_FUNCTIONS["gait_joint_ref"](state())

@@ -47,6 +47,8 @@ class HikingEnvConfig:
             episode time), and the ``gait_contact`` reward term can be used.
         gait_stance: fraction of the period each foot is meant to be on the ground (the left leg
             from phase 0, the right from phase 0.5).
+        gait_amplitude: how far the clock's swing reference folds the swinging leg, rad (hip
+            pitch and ankle pitch by this, knee by twice this; ``gait_joint_ref`` term).
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
@@ -86,6 +88,7 @@ class HikingEnvConfig:
     swing_height: float = 0.1
     gait_period: float = 0.0
     gait_stance: float = 0.55
+    gait_amplitude: float = 0.25
     reward_overrides: dict[str, float] = field(default_factory=dict)
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
@@ -109,9 +112,12 @@ class HikingEnvConfig:
             raise ValueError(f"gait_period must be >= 0 (0: no gait clock), got {self.gait_period!r}")
         if not 0.0 < self.gait_stance < 1.0:
             raise ValueError(f"gait_stance must lie in (0, 1), got {self.gait_stance!r}")
-        if self.reward_overrides.get("gait_contact", 0.0) and not self.gait_period:
-            raise ValueError("reward term gait_contact needs a gait clock: set gait_period > 0 "
-                             f"(got gait_period={self.gait_period!r})")
+        for term in ("gait_contact", "gait_joint_ref"):
+            if self.reward_overrides.get(term, 0.0) and not self.gait_period:
+                raise ValueError(f"reward term {term} needs a gait clock: set gait_period > 0 "
+                                 f"(got gait_period={self.gait_period!r})")
+        if not self.gait_amplitude >= 0:
+            raise ValueError(f"gait_amplitude must be >= 0, got {self.gait_amplitude!r}")
         if not self.levels:
             raise ValueError("levels must name at least one difficulty level")
 

@@ -29,6 +29,7 @@ from torchrl.envs import EnvBase
 
 from legoh_rl.envs.config import HikingEnvConfig
 from legoh_rl.envs.curriculum import Curriculum
+from legoh_rl.envs.gait import swing_joints, swing_reference
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
@@ -129,6 +130,7 @@ class HikingEnv(EnvBase):
             caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
             self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg, obstacle_caster=caster)
         self.scandot_xy = scandot_offsets()
+        self.swing_joints = swing_joints(self.robot.leg_joints) if cfg.gait_period else None
         self.rng = np.random.default_rng(cfg.seed)
         self.global_steps = 0
         self.diverged_total = 0
@@ -466,8 +468,15 @@ class HikingEnv(EnvBase):
             reach_radius=self.cfg.reach_radius, dt=self.dt,
             feet_contact=s["contact"], foot_lift=s["foot_lift"], foot_vel_xy=foot_vel_xy,
             swing_height=self.cfg.swing_height,
-            gait_phase=self.gait_phase(), gait_stance=self.cfg.gait_stance,
+            gait_phase=self.gait_phase(), gait_stance=self.cfg.gait_stance, gait_ref_q=self.gait_reference(),
         )
+
+    def gait_reference(self) -> np.ndarray | None:
+        """(N, A) leg-joint targets of the gait clock's swing reference (default pose + offsets), or None."""
+        phase = self.gait_phase()
+        if phase is None:
+            return None
+        return self.q_default + swing_reference(phase, self.swing_joints, self.A, self.cfg.gait_amplitude)
 
     def gait_phase(self) -> np.ndarray | None:
         """(N,) phase in [0, 1) of each world's gait clock (episode time / period), or None."""

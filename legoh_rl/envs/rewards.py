@@ -28,8 +28,9 @@ Conventions (N worlds, A leg joints):
   (N, 2) bool, ``foot_lift`` (N, 2) height of each foot above the terrain under it minus its height
   when standing, m, ``foot_vel_xy`` (N, 2, 2) horizontal foot velocities (world frame), m/s;
   ``swing_height`` the target lift of a moving foot, m;
-* gait clock (optional, read only by ``gait_contact``): ``gait_phase`` (N,) in [0, 1),
-  ``gait_stance`` the stance fraction of the period.
+* gait clock (optional, read only by ``gait_contact`` and ``gait_joint_ref``): ``gait_phase``
+  (N,) in [0, 1), ``gait_stance`` the stance fraction of the period, ``gait_ref_q`` (N, A) the
+  clock's leg-joint reference (:mod:`legoh_rl.envs.gait`).
 
 Beyond the paper's table, two "basic elements" of the legged_gym family (the paper adds basic
 terms from Extreme Parkour and Humanoid-Gym without listing them) are available with weight 0
@@ -44,8 +45,9 @@ that moves horizontally should be lifted ``swing_height``, as Walk-These-Ways' c
 without its gait clock) and ``feet_slip`` (a foot on the ground should not slide, Humanoid-Gym).
 With a gait clock (``HikingEnvConfig.gait_period``), ``gait_contact`` rewards each foot whose
 contact state matches the clock (stance for the first ``gait_stance`` of its leg's phase, the
-right leg half a period behind the left), as the periodic contact reward of Humanoid-Gym and
-Unitree's RL Gym.
+right leg half a period behind the left), and ``gait_joint_ref`` leg joints that follow the
+clock's swing reference, as Humanoid-Gym's periodic contact and joint-position rewards
+(:mod:`legoh_rl.envs.gait`).
 """
 
 from __future__ import annotations
@@ -53,6 +55,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from legoh_rl.envs.gait import stance_mask
 
 __all__ = [
     "RewardState",
@@ -62,7 +66,6 @@ __all__ = [
     "reward_weights",
     "EXTRA_WEIGHTS",
     "compute_rewards",
-    "gait_stance_mask",
 ]
 
 EPS = 1e-5
@@ -106,6 +109,7 @@ class RewardState:
     swing_height: float = 0.1
     gait_phase: np.ndarray | None = None
     gait_stance: float = 0.55
+    gait_ref_q: np.ndarray | None = None
 
     def require(self, *names: str) -> None:
         """Raise ``ValueError`` naming the optional fields in ``names`` that are unset."""
@@ -224,20 +228,18 @@ def reward_feet_slip(s: RewardState) -> np.ndarray:
     return np.sum(np.linalg.norm(s.foot_vel_xy, axis=-1) * s.feet_contact, axis=1)
 
 
-def gait_stance_mask(phase: np.ndarray, stance: float) -> np.ndarray:
-    """(N, 2) bool: which feet (left, right) the clock puts on the ground at ``phase`` (N,) in [0, 1).
-
-    The left leg's phase is ``phase``, the right leg's ``phase + 0.5`` (mod 1); a leg is in stance
-    while its phase is below ``stance``.
-    """
-    legs = np.stack([phase, (phase + 0.5) % 1.0], axis=1)
-    return legs < stance
-
-
 def reward_gait_contact(s: RewardState) -> np.ndarray:
     """Number of feet (0-2) whose contact state matches the gait clock's stance/swing pattern."""
     s.require("feet_contact", "gait_phase")
-    return np.sum(s.feet_contact == gait_stance_mask(s.gait_phase, s.gait_stance), axis=1).astype(np.float64)
+    return np.sum(s.feet_contact == stance_mask(s.gait_phase, s.gait_stance), axis=1).astype(np.float64)
+
+
+def reward_gait_joint_ref(s: RewardState) -> np.ndarray:
+    """exp(-2 ||q - q_ref||) - 0.2 min(||q - q_ref||, 0.5): leg joints that follow the clock's
+    swing reference ``q_ref = q_default + swing_reference`` (Humanoid-Gym's joint-position term)."""
+    s.require("gait_ref_q")
+    d = np.linalg.norm(s.q - s.gait_ref_q, axis=1)
+    return np.exp(-2.0 * d) - 0.2 * np.minimum(d, 0.5)
 
 
 def reward_alive(s: RewardState) -> np.ndarray:
@@ -281,6 +283,7 @@ STUDENT_ONLY = frozenset({"pn_distance"})
 # legged_gym "basic elements", not in the paper's table: off unless a recipe sets them
 EXTRA_WEIGHTS: dict[str, float] = {
     "alive": 0.0, "termination": 0.0, "feet_clearance": 0.0, "feet_slip": 0.0, "gait_contact": 0.0,
+    "gait_joint_ref": 0.0,
 }
 # added after the only_positive_rewards clip
 AFTER_CLIP = frozenset({"termination"})

@@ -40,6 +40,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         episode_length_s=float(cfg.get("episode_length_s", 20.0)),
         cmd_speed=float(cfg.get("cmd_speed", 0.8)),
         gait_period=float(cfg.get("gait_period", 0.0)),
+        gait_amplitude=float(cfg.get("gait_amplitude", 0.25)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
     )
     if not cfg.get("domain_rand", True):
@@ -91,7 +92,7 @@ def policy_meta(env: HikingEnv, kind: str) -> dict:
     layout = {k: tuple(spec[k].shape[1:]) for k in keys}
     meta = {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}
     if env.cfg.gait_period:
-        meta.update(gait_period=env.cfg.gait_period, gait_stance=env.cfg.gait_stance)
+        meta.update(gait_period=env.cfg.gait_period, gait_stance=env.cfg.gait_stance)  # the policy's clock
     return meta
 
 
