@@ -2,8 +2,11 @@
 # An H1 oracle from scratch with a gait clock (RESULTS.md, run 11): the G1 schedule
 # (recipes/oracle_g1_stages.sh) plus, from the first step, a 0.8 s gait clock in the observation
 # (env.gait_period), a reward for feet whose contacts follow it (gait_contact), a swing-foot
-# clearance target (feet_clearance) and a slip penalty (feet_slip). Run 10 showed that a shuffle
-# learned without them does not unlearn when they are added later. Seed 0, 2 CPU cores.
+# clearance target (feet_clearance) and a slip penalty (feet_slip); from stage 2 on, a reward for
+# legs that follow the clock's swing reference (gait_joint_ref). Seed 0, 2 CPU cores.
+#
+# Not a recipe that works yet: run 11 stopped 2.71M steps into stage 2 with the robot still
+# standing (no stepping in phase). Stage 1 took 23 min; stages 2-3 below are the planned rest.
 #
 #   bash recipes/oracle_h1_gait_stages.sh [output root, default outputs/oracle_h1_gait]
 #   FROM_STAGE=2 bash recipes/oracle_h1_gait_stages.sh   # stage 1 done: go on from its checkpoint
