@@ -63,6 +63,7 @@ def main() -> None:
         ("training checkpoint", str(trained)),
         ("evaluated policy", str(policy)),
         ("metrics table", result["table"]),
+        ("metrics per level", result["levels"]),
         ("metrics CSV", result["csv"]),
         ("trajectory plot", result["plot"]),
         ("video", result["video"] or "(skipped: no OpenGL context for MuJoCo rendering)"),
