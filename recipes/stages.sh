@@ -1,5 +1,6 @@
-# Shared by the staged oracle scripts (oracle_h1_stages.sh, oracle_g1_stages.sh); source it after
-# setting OUT (output root), PY (python) and COMMON (overrides every stage shares).
+# Shared by the staged oracle scripts (oracle_h1_stages.sh, oracle_h1_gait_stages.sh,
+# oracle_g1_stages.sh); source it after setting OUT (output root), PY (python) and COMMON
+# (overrides every stage shares).
 #
 #   stage <n> <total env steps> <overrides...>
 # runs recipes/oracle_ppo.py into $OUT/stage<n>, resuming $OUT/stage<n-1>/last.pt when n > 1.

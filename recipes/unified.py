@@ -163,8 +163,8 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
     params = [q for g in p["optim"].param_groups for q in g["params"]]
     # One gather per iteration: the worlds in a random order, without the "next" entries the
     # losses no longer need (GAE is done). Minibatches are then slices (views) of it. Gathering
-    # per minibatch copied ~165 MB of depth stacks into fresh pages each time, ~40% of a CPU
-    # iteration (BENCHMARKS.md, "Unified training").
+    # per minibatch copied ~165 MB of depth stacks into fresh pages each time, ~28% of a profiled
+    # CPU run (BENCHMARKS.md, "Unified training: minibatches without copies").
     train = data.exclude("next")[torch.randperm(data.shape[0])]
     size = -(-data.shape[0] // cfg.ppo.num_minibatches)
     for _ in range(cfg.ppo.num_epochs if rl else int(cfg.dagger_epochs)):

@@ -306,6 +306,10 @@ def test_gait_clock_in_proprio_and_contact_reward():
     td = env.reset(TensorDict({"_reset": torch.tensor([[True], [False]])}, batch_size=[2]))
     np.testing.assert_allclose(td["proprio"][0, -2:].numpy(), [0.0, 1.0], atol=1e-6)
     np.testing.assert_allclose(env.gait_phase(), [0.0, phase])
+    # no term reads the swing reference here, so the reward state carries none
+    state = env._read_state()
+    state["goal_dirs_w"] = env._goal_dirs(state["pos"])
+    assert env._reward_state(state).gait_ref_q is None
 
 
 def test_gait_options_refused_when_bad():

@@ -31,7 +31,7 @@ def swing_joints(leg_joints: tuple[str, ...]) -> np.ndarray:
     ``left_ankle_pitch_joint``) names.
 
     Raises:
-        ValueError: a leg lacks one of the three joints (names the missing ones).
+        ValueError: a leg lacks one of the three joints, or has several (names the leg and joint).
     """
     out = np.zeros((2, 3), dtype=np.int64)
     for i, side in enumerate(("left", "right")):

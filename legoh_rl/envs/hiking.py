@@ -421,6 +421,7 @@ class HikingEnv(EnvBase):
             "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
             "goal_vec": goal_vec, "goal_dist": np.linalg.norm(goal_vec, axis=1),
             "feet_xy": feet_xy.copy(), "foot_lift": feet_pos[..., 2] - feet_ground - self.robot.foot_rest_height,
+            "gait_phase": self.gait_phase(),
         }
 
     def _advance_goals(self, state: dict) -> None:
@@ -468,12 +469,15 @@ class HikingEnv(EnvBase):
             reach_radius=self.cfg.reach_radius, dt=self.dt,
             feet_contact=s["contact"], foot_lift=s["foot_lift"], foot_vel_xy=foot_vel_xy,
             swing_height=self.cfg.swing_height,
-            gait_phase=self.gait_phase(), gait_stance=self.cfg.gait_stance, gait_ref_q=self.gait_reference(),
+            gait_phase=s["gait_phase"], gait_stance=self.cfg.gait_stance,
+            # the swing reference only when a term reads it
+            gait_ref_q=self.gait_reference(s["gait_phase"]) if "gait_joint_ref" in self.weights else None,
         )
 
-    def gait_reference(self) -> np.ndarray | None:
-        """(N, A) leg-joint targets of the gait clock's swing reference (default pose + offsets), or None."""
-        phase = self.gait_phase()
+    def gait_reference(self, phase: np.ndarray | None = None) -> np.ndarray | None:
+        """(N, A) leg-joint targets of the gait clock's swing reference (default pose + offsets) at
+        ``phase`` (default: the current :meth:`gait_phase`), or None without a clock."""
+        phase = self.gait_phase() if phase is None else phase
         if phase is None:
             return None
         return self.q_default + swing_reference(phase, self.swing_joints, self.A, self.cfg.gait_amplitude)
@@ -512,7 +516,7 @@ class HikingEnv(EnvBase):
                 s["dq"] * DOF_VEL_SCALE,
                 self.action,
                 s["contact"].astype(np.float64),
-                *self._gait_clock(),
+                *self._gait_clock(s["gait_phase"]),
             ],
             axis=1,
         )
@@ -530,9 +534,9 @@ class HikingEnv(EnvBase):
             obs["depth"] = self.depth
         return obs
 
-    def _gait_clock(self) -> list[np.ndarray]:
+    @staticmethod
+    def _gait_clock(phase: np.ndarray | None) -> list[np.ndarray]:
         """The proprio's clock columns: [(N, 2) sin/cos of the gait phase], or [] without a clock."""
-        phase = self.gait_phase()
         if phase is None:
             return []
         angle = 2.0 * np.pi * phase

@@ -40,6 +40,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         episode_length_s=float(cfg.get("episode_length_s", 20.0)),
         cmd_speed=float(cfg.get("cmd_speed", 0.8)),
         gait_period=float(cfg.get("gait_period", 0.0)),
+        gait_stance=float(cfg.get("gait_stance", 0.55)),
         gait_amplitude=float(cfg.get("gait_amplitude", 0.25)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
     )
