@@ -1,0 +1,73 @@
+"""The staged training scripts (recipes/*_stages.sh) run their stages in order, each resuming the
+last one, with overrides that the recipe's config accepts. A dry run: ``python`` is replaced by a
+shell stand-in that records its arguments; each stage's config is then composed and its env
+section and reward weights validated here (nothing is built or trained)."""
+
+import os
+import subprocess
+from pathlib import Path
+
+import pytest
+from hydra import compose, initialize_config_dir
+
+from legoh_rl.envs.rewards import reward_weights
+from legoh_rl.envs.robots import get_robot_spec
+from legoh_rl.training.builders import env_config
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPTS = sorted((ROOT / "recipes").glob("*_stages.sh"))
+FAKE_PYTHON = """#!/bin/sh
+printf '%s\\037' "$@" >> "$STAGE_LOG"
+printf '\\036' >> "$STAGE_LOG"
+"""
+
+
+def dry_run(script: Path, tmp_path: Path, extra_env: dict | None = None) -> list[dict]:
+    """Run ``script`` with the stand-in ``python``: one {"recipe", "overrides"} per call, in order."""
+    fake = tmp_path / "python"
+    fake.write_text(FAKE_PYTHON)
+    fake.chmod(0o755)
+    log = tmp_path / "calls"
+    env = {**os.environ, "PYTHON": str(fake), "STAGE_LOG": str(log), **(extra_env or {})}
+    subprocess.run(["bash", str(script), str(tmp_path / "out")], check=True, env=env, capture_output=True, text=True)
+    calls = []
+    for record in log.read_text().split("\036")[:-1]:
+        args = record.split("\037")[:-1]
+        calls.append({"recipe": Path(args[0]).stem, "overrides": args[1:]})
+    return calls
+
+
+def validate_oracle_stage(overrides: list[str]) -> None:
+    """Compose oracle_ppo's config with ``overrides`` and validate its env section and rewards."""
+    with initialize_config_dir(config_dir=str(ROOT / "recipes" / "config"), version_base=None):
+        cfg = compose(config_name="oracle_ppo", overrides=overrides)
+    env = env_config(cfg.env, mode="oracle")
+    reward_weights(get_robot_spec(env.robot).reward_weights, env.reward_overrides, student=False)
+
+
+def value(overrides: list[str], key: str) -> str | None:
+    hits = [o.split("=", 1)[1] for o in overrides if o.split("=", 1)[0] == key]
+    return hits[-1] if hits else None
+
+
+@pytest.mark.parametrize("script", SCRIPTS, ids=[s.name for s in SCRIPTS])
+def test_stages_chain_and_their_configs_validate(script, tmp_path):
+    assert len(SCRIPTS) >= 3
+    calls = dry_run(script, tmp_path)
+    stages, export = calls[:-1], calls[-1]
+    assert len(stages) >= 2 and all(c["recipe"] == "oracle_ppo" for c in stages)
+    out = tmp_path / "out"
+    totals = [int(value(c["overrides"], "collector.total_frames")) for c in stages]
+    assert totals == sorted(totals) and len(set(totals)) == len(totals), totals
+    for n, call in enumerate(stages, start=1):
+        validate_oracle_stage(call["overrides"])
+        assert value(call["overrides"], "checkpoint.dir") == f"{out}/stage{n}"
+        resume = value(call["overrides"], "checkpoint.resume")
+        assert resume == (None if n == 1 else f"{out}/stage{n - 1}/last.pt")
+    assert export["recipe"] == "export_policy" and export["overrides"][0] == f"{out}/stage{len(stages)}/last.pt"
+
+
+def test_from_stage_skips_the_finished_stages(tmp_path):
+    script = ROOT / "recipes" / "oracle_h1_stages.sh"
+    calls = dry_run(script, tmp_path, {"FROM_STAGE": "5"})
+    assert [value(c["overrides"], "checkpoint.dir").rsplit("/", 1)[1] for c in calls[:-1]] == ["stage5", "stage6"]
