@@ -323,6 +323,10 @@ def test_gait_options_refused_when_bad():
         HikingEnvConfig(reward_overrides={"gait_joint_ref": 1.0})
     with pytest.raises(ValueError, match="gait_amplitude must be >= 0, got -0.1"):
         HikingEnvConfig(gait_amplitude=-0.1)
+    with pytest.raises(ValueError, match="gait_feedforward must be >= 0.*-1.0"):
+        HikingEnvConfig(gait_period=0.8, gait_feedforward=-1.0)
+    with pytest.raises(ValueError, match="gait_feedforward=1.0 needs a gait clock.*gait_period=0.0"):
+        HikingEnvConfig(gait_feedforward=1.0)
 
 
 def test_gait_joint_ref_reads_the_clocks_reference():
@@ -335,3 +339,26 @@ def test_gait_joint_ref_reads_the_clocks_reference():
     d = np.linalg.norm(env._read_state()["q"] - ref, axis=1)
     expected = (np.exp(-2 * d) - 0.2 * np.minimum(d, 0.5)) * env.dt
     np.testing.assert_allclose(nxt["reward_terms", "gait_joint_ref"].numpy()[:, 0], expected, rtol=1e-5)
+
+
+def test_gait_feedforward_adds_the_clocks_swing_to_the_pd_targets():
+    env = make(n=2, **quiet(gait_period=0.8, gait_amplitude=0.2, gait_feedforward=0.5))
+    plain = make(n=2, **quiet(gait_period=0.8, gait_amplitude=0.2))
+    targets = lambda e: e.worlds.ctrl[:, e.worlds.built.actuator_ids].copy()  # noqa: E731
+    for e in (env, plain):
+        e.reset()
+        for _ in range(10):  # the policy observes phase 0.25 before the 11th action
+            act(e)
+    nxt = act(env, torch.full((2, env.A), 0.4))
+    act(plain, torch.full((2, env.A), 0.4))
+    scale = env.robot.action_scale
+    # at phase 0.25 the right leg's reference is folded by 0.2 / 0.4 / 0.2; half of it is fed forward
+    swing = 0.5 * np.array([0, 0, 0, 0, 0, 0, 0, -0.2, 0.4, -0.2])
+    np.testing.assert_allclose(targets(env), np.tile(env.q_default + scale * 0.4 + swing, (2, 1)), atol=1e-6)
+    np.testing.assert_allclose(targets(plain), np.tile(plain.q_default + scale * 0.4, (2, 1)), atol=1e-6)
+    # the swinging (right) knee bends further than the stance knee once the targets act
+    for _ in range(4):
+        nxt = act(env)
+    q = env._read_state()["q"]
+    assert (q[:, 8] - q[:, 3] > 0.05).all(), q[:, [3, 8]]
+    assert nxt["proprio"].shape[-1] == plain.observation_spec["proprio"].shape[-1]

@@ -184,13 +184,16 @@ def test_gait_clock_policy_keeps_its_clock_through_export_and_evaluation(tmp_pat
     ck = tmp_path / "ck"
     oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}",
                                                   "env.gait_period=0.6", "env.gait_stance=0.6",
+                                                  "env.gait_amplitude=0.2", "env.gait_feedforward=0.5",
                                                   "+env.reward_overrides.gait_contact=1.0"]))
     slim = export_policy(ck / "last.pt", tmp_path / "oracle.pt")
     meta = load_checkpoint(slim)["meta"]
     assert meta["gait_period"] == 0.6 and meta["gait_stance"] == 0.6 and meta["obs_layout"]["proprio"] == (39,)
+    assert meta["gait_amplitude"] == 0.2 and meta["gait_feedforward"] == 0.5  # the clock drives the targets
     env, policy, kind = load_policy(str(slim), EvalProtocol(categories=("randommix",), levels=(0,), robots_per_cell=1),
                                     variants=1, num_threads=1)
     assert kind == "oracle" and env.cfg.gait_period == 0.6 and env.cfg.gait_stance == 0.6
+    assert env.cfg.gait_amplitude == 0.2 and env.cfg.gait_feedforward == 0.5
     assert env.observation_spec["proprio"].shape[-1] == 39
     td = policy(env.reset())
     assert td["action"].shape == (1, env.A)

@@ -49,6 +49,10 @@ class HikingEnvConfig:
             from phase 0, the right from phase 0.5).
         gait_amplitude: how far the clock's swing reference folds the swinging leg, rad (hip
             pitch and ankle pitch by this, knee by twice this; ``gait_joint_ref`` term).
+        gait_feedforward: gain of the swing reference added to the PD targets (0: off). With 1,
+            ``q* = q_default + swing_reference(phi) + action_scale * a``: the clock steps the legs
+            by itself and the policy's action is a residual on that gait. Not in the paper: a
+            structural prior for small sample budgets (RESULTS.md, run 13).
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
@@ -89,6 +93,7 @@ class HikingEnvConfig:
     gait_period: float = 0.0
     gait_stance: float = 0.55
     gait_amplitude: float = 0.25
+    gait_feedforward: float = 0.0
     reward_overrides: dict[str, float] = field(default_factory=dict)
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
@@ -118,6 +123,11 @@ class HikingEnvConfig:
                                  f"(got gait_period={self.gait_period!r})")
         if not self.gait_amplitude >= 0:
             raise ValueError(f"gait_amplitude must be >= 0, got {self.gait_amplitude!r}")
+        if not self.gait_feedforward >= 0:
+            raise ValueError(f"gait_feedforward must be >= 0 (0: off), got {self.gait_feedforward!r}")
+        if self.gait_feedforward and not self.gait_period:
+            raise ValueError(f"gait_feedforward={self.gait_feedforward!r} needs a gait clock: set gait_period > 0 "
+                             f"(got gait_period={self.gait_period!r})")
         if not self.levels:
             raise ValueError("levels must name at least one difficulty level")
 

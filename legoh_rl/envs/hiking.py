@@ -271,7 +271,10 @@ class HikingEnv(EnvBase):
         self.action_hist[:, 0] = a
         delay = self.randomizer.delay_steps(self.global_steps)
         applied = self.action_hist[:, min(delay, self.action_hist.shape[1] - 1)]
-        self.worlds.set_joint_targets(self.q_default + self.robot.action_scale * applied)
+        targets = self.q_default + self.robot.action_scale * applied
+        if self.cfg.gait_feedforward:  # the clock's swing at the phase the policy just observed
+            targets = targets + self.cfg.gait_feedforward * (self.gait_reference() - self.q_default)
+        self.worlds.set_joint_targets(targets)
 
         self.episode_step += 1
         self.global_steps += 1

@@ -42,6 +42,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         gait_period=float(cfg.get("gait_period", 0.0)),
         gait_stance=float(cfg.get("gait_stance", 0.55)),
         gait_amplitude=float(cfg.get("gait_amplitude", 0.25)),
+        gait_feedforward=float(cfg.get("gait_feedforward", 0.0)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
     )
     if not cfg.get("domain_rand", True):
@@ -86,17 +87,21 @@ def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] |
 
 def policy_meta(env: HikingEnv, kind: str) -> dict:
     """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind, and
-    the gait clock's period and stance fraction when the env has a clock (older checkpoints, made
-    without one, carry no such fields)."""
+    the gait clock's period and stance fraction when the env has a clock, and its amplitude and
+    feedforward gain when the clock drives the PD targets (older checkpoints, made without them,
+    carry no such fields)."""
     spec = env.observation_spec
     keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" else ())
     layout = {k: tuple(spec[k].shape[1:]) for k in keys}
     meta = {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}
     if env.cfg.gait_period:
         meta.update(gait_period=env.cfg.gait_period, gait_stance=env.cfg.gait_stance)  # the policy's clock
+    if env.cfg.gait_feedforward:  # the clock's swing is part of the policy's actions
+        meta.update(gait_amplitude=env.cfg.gait_amplitude, gait_feedforward=env.cfg.gait_feedforward)
     return meta
 
 
 def gait_kwargs(meta: Mapping) -> dict:
     """The env config fields that rebuild a checkpoint's gait clock (empty without one)."""
-    return {k: float(meta[k]) for k in ("gait_period", "gait_stance") if k in meta}
+    keys = ("gait_period", "gait_stance", "gait_amplitude", "gait_feedforward")
+    return {k: float(meta[k]) for k in keys if k in meta}

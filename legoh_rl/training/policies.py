@@ -32,7 +32,8 @@ class ZeroPolicy(TensorDictModuleBase):
 def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
              trails=None, **gait) -> HikingEnv:
     """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds); ``gait``:
-    ``gait_period``/``gait_stance`` of a policy trained with a gait clock."""
+    ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``) of a policy
+    trained with a gait clock."""
     cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
                           categories=tuple(protocol.categories), levels=tuple(protocol.levels),
                           variants=variants, seed=seed, num_threads=num_threads, **gait)
