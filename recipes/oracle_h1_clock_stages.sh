@@ -1,20 +1,26 @@
 #!/usr/bin/env bash
-# Run 12 (RESULTS.md): the schedule that taught H1 to walk (recipes/oracle_h1_stages.sh, runs
-# 4-9: entropy bonus 0.01 and an uncapped action std while it learns to walk) with a 0.8 s gait
-# clock in the observation (env.gait_period) and only positive gait terms from the first step:
-# feet whose contacts follow the clock (gait_contact, 2) and legs that follow its swing reference
-# (gait_joint_ref, 4). No clearance or slip penalty: run 11 (the G1 schedule with the std capped
-# at 0.5 from the start, and those penalties) kept standing. Stages 3-6 of the original schedule
-# are merged into one. Seed 0, 2 CPU cores.
+# Runs 12 and 13 (RESULTS.md): the schedule that taught H1 to walk (recipes/oracle_h1_stages.sh,
+# runs 4-9: entropy bonus 0.01 and an uncapped action std while it learns to walk) with a 0.8 s
+# gait clock in the observation (env.gait_period) and only positive gait terms from the first
+# step: feet whose contacts follow the clock (gait_contact, 2) and legs that follow its swing
+# reference (gait_joint_ref, 4). No clearance or slip penalty: run 11 (the G1 schedule with the
+# std capped at 0.5 from the start, and those penalties) kept standing. Stages 3-6 of the
+# original schedule are merged into one. Seed 0, 2 CPU cores.
+#
+# FEEDFORWARD (default 0) is env.gait_feedforward: the gain of the clock's swing reference added
+# to the PD targets, so that the legs step by themselves and the policy learns a residual.
+# Run 12 is FEEDFORWARD=0 (stopped in stage 2: it shuffled like run 5, the gait terms at their
+# standing values); run 13 is FEEDFORWARD=1.
 #
 #   bash recipes/oracle_h1_clock_stages.sh [output root, default outputs/oracle_h1_clock]
+#   FEEDFORWARD=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_h1_feedforward   # run 13
 #   FROM_STAGE=2 bash recipes/oracle_h1_clock_stages.sh   # stage 1 done: go on from its checkpoint
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-outputs/oracle_h1_clock}
 PY=${PYTHON:-python}
 COMMON=(env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=[256,128,64] model.init_std=0.5
-        checkpoint.every=10 logger.backend=csv env.gait_period=0.8)
+        checkpoint.every=10 logger.backend=csv env.gait_period=0.8 env.gait_feedforward="${FEEDFORWARD:-0}")
 # after each stage's reward_overrides (which replaces the whole dict)
 GAIT=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.gait_joint_ref=4.0)
 
@@ -29,4 +35,4 @@ stage 3 14991360 "env.levels=[0,1]" env.curriculum=false env.cmd_speed=0.5 \
     "env.reward_overrides={alive: 4.0, termination: -100.0}" checkpoint.keep_curriculum=false \
     ppo.entropy_coeff=0.001 model.max_std=0.5 ppo.desired_kl=0.02 "${GAIT[@]}"
 
-"$PY" recipes/export_policy.py "$OUT/stage3/last.pt" "$OUT/oracle_h1_clock.pt"
+"$PY" recipes/export_policy.py "$OUT/stage3/last.pt" "$OUT/oracle_h1.pt"
