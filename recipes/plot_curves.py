@@ -6,7 +6,9 @@
 Several run directories are stages of one policy, each resumed from the previous one's
 checkpoint: their rows are joined in order (a stage's rows past the next stage's first step are
 dropped, since the next stage resumed from an earlier checkpoint) and the stage starts are
-marked. ``--smooth k`` overlays a k-iteration running mean on the raw curves.
+marked. ``--smooth k`` overlays a k-iteration running mean on the raw curves; ``--panels gait``
+plots the gait signals (goal-velocity tracking, air time, the gait-clock terms) instead of the
+main ones.
 """
 
 from __future__ import annotations
@@ -28,6 +30,15 @@ PANELS = [
     ("episode/traverse_rate", "traverse rate (%)"),
     ("train/action_std", "action std"),
 ]
+GAIT_PANELS = [
+    ("reward/tracking_goal_vel", "tracking_goal_vel (weighted, per step)"),
+    ("reward/feet_air_time", "feet_air_time (weighted, per step)"),
+    ("reward/gait_contact", "gait_contact (weighted, per step)"),
+    ("reward/gait_joint_ref", "gait_joint_ref (weighted, per step)"),
+    ("episode/ttf", "time to fall (s)"),
+    ("episode/trail_completion", "trail completion (%)"),
+]
+PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS}
 
 
 def load(path: Path) -> list[dict]:
@@ -60,10 +71,11 @@ def running_mean(ys: list[float], k: int) -> list[float]:
     return out
 
 
-def plot(rows: list[dict], out: Path, title: str, stage_starts: list[float] = (), smooth: int = 1) -> Path:
-    """Six panels of the main training signals against environment steps."""
+def plot(rows: list[dict], out: Path, title: str, stage_starts: list[float] = (), smooth: int = 1,
+         panels: list[tuple[str, str]] = PANELS) -> Path:
+    """Six panels (``panels``: (metrics key, title) pairs) of training signals against env steps."""
     fig, axes = plt.subplots(2, 3, figsize=(12, 6))
-    for ax, (key, label) in zip(axes.ravel(), PANELS, strict=True):
+    for ax, (key, label) in zip(axes.ravel(), panels, strict=True):
         pts = [(r["step"], r[key]) for r in rows if r.get(key) is not None]
         if pts:
             xs, ys = zip(*pts, strict=True)
@@ -90,12 +102,14 @@ def main() -> None:
     parser.add_argument("-o", "--output", type=Path, default=None)
     parser.add_argument("--smooth", type=int, default=1, help="running-mean window, iterations (1: raw only)")
     parser.add_argument("--title", default=None)
+    parser.add_argument("--panels", default="default", choices=sorted(PANEL_SETS), help="which six signals")
     args = parser.parse_args()
     if args.smooth < 1:
         parser.error(f"--smooth must be >= 1, got {args.smooth}")
     rows, starts = join_stages([load(d / "metrics.jsonl") for d in args.run_dirs])
     title = args.title or " -> ".join(str(d) for d in args.run_dirs)
-    out = plot(rows, args.output or args.run_dirs[-1] / "curves.png", title, starts, args.smooth)
+    out = plot(rows, args.output or args.run_dirs[-1] / "curves.png", title, starts, args.smooth,
+               PANEL_SETS[args.panels])
     print(f"{len(rows)} iterations in {len(args.run_dirs)} stage(s) -> {out}")
 
 
