@@ -152,9 +152,12 @@ def test_short_beta_decay_leaves_a_pure_dagger_stretch(teacher, tmp_path):
 def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
     ck = tmp_path / "oracle"
     oracle_ppo.train(cfg_of("oracle_ppo", ENV + ["collector.steps_per_env=8", "collector.total_frames=32",
-                                                 "ppo.num_epochs=1", f"checkpoint.dir={ck}", "env.gait_period=0.7"]))
+                                                 "ppo.num_epochs=1", f"checkpoint.dir={ck}", "env.gait_period=0.7",
+                                                 "env.gait_feedforward=1.0"]))
     p = unified.build(tiny(ck / "last.pt", tmp_path / "student"))  # the student config names no clock
     assert p["base"].cfg.gait_period == 0.7 and p["meta"]["gait_period"] == 0.7
+    # the teacher's actions are residuals on the clock's swing: the student acts in the same space
+    assert p["base"].cfg.gait_feedforward == 1.0 and p["meta"]["gait_feedforward"] == 1.0
     assert p["base"].observation_spec["proprio"].shape[-1] == 39
     out = unified.train(tiny(ck / "last.pt", tmp_path / "student", "collector.total_frames=40"))
     assert out["iteration"] == 1
