@@ -178,6 +178,23 @@ def test_plot_curves_joins_resumed_stages_and_smooths():
     assert plot_curves.running_mean([1.0, 3.0, 5.0, 7.0], 2) == [1.0, 2.0, 4.0, 6.0]
 
 
+def test_metrics_file_of_a_resumed_run_drops_the_rows_after_its_checkpoint(tmp_path):
+    import json
+
+    from legoh_rl.training.logging import MetricsFile
+
+    path = tmp_path / "metrics.jsonl"
+    first = MetricsFile(path)
+    for step in (10, 20, 30, 40):  # killed after step 40; the last checkpoint was at step 20
+        first.write(step, {"reward/total": step / 10})
+    resumed = MetricsFile(path, resume_step=20)
+    resumed.write(30, {"reward/total": 9.0})
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    assert [(r["step"], r["reward/total"]) for r in rows] == [(10, 1.0), (20, 2.0), (30, 9.0)]
+    MetricsFile(path, resume_step=100)  # nothing after the checkpoint: the file is left alone
+    assert len(path.read_text().splitlines()) == 3
+
+
 def test_gait_clock_policy_keeps_its_clock_through_export_and_evaluation(tmp_path):
     from legoh_rl.training.checkpoint import export_policy
     from legoh_rl.training.evaluation import EvalProtocol

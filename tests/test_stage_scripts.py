@@ -71,3 +71,16 @@ def test_from_stage_skips_the_finished_stages(tmp_path):
     script = ROOT / "recipes" / "oracle_h1_stages.sh"
     calls = dry_run(script, tmp_path, {"FROM_STAGE": "5"})
     assert [value(c["overrides"], "checkpoint.dir").rsplit("/", 1)[1] for c in calls[:-1]] == ["stage5", "stage6"]
+
+
+def test_an_interrupted_stage_resumes_its_own_checkpoint(tmp_path):
+    """Running a script again after an interruption: stages with a checkpoint go on from it."""
+    script = ROOT / "recipes" / "oracle_h1_stages.sh"
+    out = tmp_path / "out"
+    for n in (1, 2, 3):
+        (out / f"stage{n}").mkdir(parents=True)
+        (out / f"stage{n}" / "last.pt").write_bytes(b"")
+    calls = dry_run(script, tmp_path)[:-1]
+    resumes = [value(c["overrides"], "checkpoint.resume") for c in calls]
+    assert resumes[:3] == [f"{out}/stage{n}/last.pt" for n in (1, 2, 3)]
+    assert resumes[3] == f"{out}/stage3/last.pt"  # stage 4 starts from the end of stage 3

@@ -53,11 +53,32 @@ class MetricsFile:
 
     Kept beside the wandb/CSV logs so learning curves can be plotted without any service
     (``python recipes/plot_curves.py run_dir``).
+
+    Args:
+        path: the file (appended to; created with its folder).
+        resume_step: the step (env frames) of the checkpoint a resumed run continues from. Rows
+            past it were written after that checkpoint by the interrupted process and will be
+            written again, so they are dropped (the file is rewritten atomically).
     """
 
-    def __init__(self, path: str | os.PathLike) -> None:
+    def __init__(self, path: str | os.PathLike, resume_step: int | None = None) -> None:
         self.path = os.fspath(path)
         os.makedirs(os.path.dirname(self.path) or ".", exist_ok=True)
+        if resume_step is not None and os.path.isfile(self.path):
+            self._drop_after(int(resume_step))
+
+    def _drop_after(self, step: int) -> None:
+        import json
+
+        with open(self.path) as f:
+            lines = [line for line in f if line.strip()]
+        keep = [line for line in lines if json.loads(line).get("step", 0) <= step]
+        if len(keep) == len(lines):
+            return
+        tmp = self.path + ".tmp"
+        with open(tmp, "w") as f:
+            f.writelines(keep)
+        os.replace(tmp, self.path)
 
     def write(self, step: int, scalars: dict) -> None:
         """Append ``{"step": step, **scalars}`` (non-finite values written as null)."""

@@ -29,7 +29,7 @@ class RunLog:
         self.logger = make_logger(lcfg.backend, lcfg.exp_name, str(run_dir / "logs"), lcfg.project, lcfg.online,
                                   run_id, OmegaConf.to_container(cfg, resolve=True))
         self.run_id = getattr(getattr(self.logger, "experiment", None), "id", run_id)
-        self.metrics = MetricsFile(run_dir / "metrics.jsonl")
+        self.metrics = MetricsFile(run_dir / "metrics.jsonl", resume_step=start_frames if start_frames else None)
         self.every = int(lcfg.log_every)
         self.start_frames = start_frames
         self.start = time.perf_counter()
