@@ -216,3 +216,22 @@ def test_gait_clock_policy_keeps_its_clock_through_export_and_evaluation(tmp_pat
     assert env.observation_spec["proprio"].shape[-1] == 39
     td = policy(env.reset())
     assert td["action"].shape == (1, env.A)
+
+
+def test_gait_stats_read_feet_on_the_ground_for_a_standing_robot():
+    import gait_stats
+
+    s = gait_stats.gait_stats("zero", robots=4, seconds=1.5, settle_s=0.5)  # PD hold, before it tips over
+    assert s["standing"] == 4 and s["airborne"] == 0.0
+    assert 0.0 <= s["lift_mean"] <= s["lift_p95"] <= s["lift_max"] < 0.01
+    with pytest.raises(ValueError, match="seconds > settle_s"):
+        gait_stats.gait_stats("zero", seconds=0.5)
+
+
+def test_the_committed_oracle_walks_lifting_its_feet():
+    """checkpoints/oracle_h1.pt (run 13, gait feedforward) steps: feet well off the ground, forward speed."""
+    import gait_stats
+
+    s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=4.0)
+    assert s["standing"] == 4
+    assert s["lift_p95"] > 0.10 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s

@@ -392,6 +392,17 @@ class HikingEnv(EnvBase):
         return ep
 
     # ------------------------------------------------------------------ state, rewards, obs
+    def read_state(self) -> dict:
+        """The worlds' current physical state as numpy arrays, for analysis tools.
+
+        Keys (N = num_envs): ``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,),
+        ``lin_vel_w``/``lin_vel_b``/``ang_vel_b`` (N, 3), ``q``/``dq``/``torques`` (N, A),
+        ``contact`` (N, 2) bool, ``foot_lift`` (N, 2) m (foot height above the terrain under it,
+        0 when standing), ``base_height`` (N,) m above the terrain, ``goal_dist`` (N,) m to P_B,
+        and the rest of the reward inputs.
+        """
+        return self._read_state()
+
     def _read_state(self) -> dict:
         w, b = self.worlds, self.built
         qpos, qvel = w.qpos, w.qvel
