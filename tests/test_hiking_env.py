@@ -275,7 +275,7 @@ def test_gait_terms_read_foot_lift_and_slip(robot):
     env.reset()
     for _ in range(15):  # settle onto the flat ground
         nxt = act(env)
-    s = env._read_state()
+    s = env.read_state()
     assert s["contact"].all()
     np.testing.assert_allclose(s["foot_lift"], 0.0, atol=0.01)  # foot_rest_height is the standing height
     assert np.abs(nxt["reward_terms", "feet_slip"].numpy()).max() < 0.05 * env.dt
@@ -300,14 +300,14 @@ def test_gait_clock_in_proprio_and_contact_reward():
     np.testing.assert_allclose(nxt["proprio"][:, -2:].numpy(),
                                np.tile([math.sin(2 * math.pi * phase), math.cos(2 * math.pi * phase)], (2, 1)), atol=1e-6)
     # both feet on the ground at phase 0.375: the left leg is in stance, the right in swing -> 1 of 2
-    assert env._read_state()["contact"].all()
+    assert env.read_state()["contact"].all()
     np.testing.assert_allclose(nxt["reward_terms", "gait_contact"].numpy(), 1.0 * env.dt, rtol=1e-6)
     # a reset world's clock starts again at phase 0; the other world's runs on
     td = env.reset(TensorDict({"_reset": torch.tensor([[True], [False]])}, batch_size=[2]))
     np.testing.assert_allclose(td["proprio"][0, -2:].numpy(), [0.0, 1.0], atol=1e-6)
     np.testing.assert_allclose(env.gait_phase(), [0.0, phase])
     # no term reads the swing reference here, so the reward state carries none
-    state = env._read_state()
+    state = env.read_state()
     state["goal_dirs_w"] = env._goal_dirs(state["pos"])
     assert env._reward_state(state).gait_ref_q is None
 
@@ -336,7 +336,7 @@ def test_gait_joint_ref_reads_the_clocks_reference():
         nxt = act(env)
     ref = env.gait_reference()
     np.testing.assert_allclose(ref - env.q_default, np.tile([0, 0, 0, 0, 0, 0, 0, -0.2, 0.4, -0.2], (2, 1)), atol=1e-9)
-    d = np.linalg.norm(env._read_state()["q"] - ref, axis=1)
+    d = np.linalg.norm(env.read_state()["q"] - ref, axis=1)
     expected = (np.exp(-2 * d) - 0.2 * np.minimum(d, 0.5)) * env.dt
     np.testing.assert_allclose(nxt["reward_terms", "gait_joint_ref"].numpy()[:, 0], expected, rtol=1e-5)
 
@@ -359,6 +359,6 @@ def test_gait_feedforward_adds_the_clocks_swing_to_the_pd_targets():
     # the swinging (right) knee bends further than the stance knee once the targets act
     for _ in range(4):
         nxt = act(env)
-    q = env._read_state()["q"]
+    q = env.read_state()["q"]
     assert (q[:, 8] - q[:, 3] > 0.05).all(), q[:, [3, 8]]
     assert nxt["proprio"].shape[-1] == plain.observation_spec["proprio"].shape[-1]

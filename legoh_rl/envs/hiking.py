@@ -240,7 +240,7 @@ class HikingEnv(EnvBase):
             mask = tensordict.get("_reset").reshape(N).cpu().numpy().astype(bool)
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
         self._reset_worlds(ids)
-        state = self._read_state()
+        state = self.read_state()
         state["goal_dirs_w"] = self._goal_dirs(state["pos"])
         self._render_depth(np.isin(np.arange(N), ids))
         obs = self._observations(state)
@@ -282,7 +282,7 @@ class HikingEnv(EnvBase):
         diverged = self.worlds.step()
         self.diverged_total += int(diverged.sum())
 
-        state = self._read_state()
+        state = self.read_state()
         self._advance_goals(state)
         state["goal_dirs_w"] = self._goal_dirs(state["pos"])
         fell = (
@@ -393,17 +393,14 @@ class HikingEnv(EnvBase):
 
     # ------------------------------------------------------------------ state, rewards, obs
     def read_state(self) -> dict:
-        """The worlds' current physical state as numpy arrays, for analysis tools.
+        """The worlds' current physical state as numpy arrays (observations and rewards start here).
 
         Keys (N = num_envs): ``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,),
         ``lin_vel_w``/``lin_vel_b``/``ang_vel_b`` (N, 3), ``q``/``dq``/``torques`` (N, A),
         ``contact`` (N, 2) bool, ``foot_lift`` (N, 2) m (foot height above the terrain under it,
         0 when standing), ``base_height`` (N,) m above the terrain, ``goal_dist`` (N,) m to P_B,
-        and the rest of the reward inputs.
+        and the rest of the reward inputs. Analysis tools (recipes/gait_stats.py) read it too.
         """
-        return self._read_state()
-
-    def _read_state(self) -> dict:
         w, b = self.worlds, self.built
         qpos, qvel = w.qpos, w.qvel
         pos = qpos[:, 0:3].copy()
