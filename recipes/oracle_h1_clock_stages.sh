@@ -15,6 +15,12 @@
 #   bash recipes/oracle_h1_clock_stages.sh [output root, default outputs/oracle_h1_clock]
 #   FEEDFORWARD=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_h1_feedforward   # run 13
 #   FROM_STAGE=2 bash recipes/oracle_h1_clock_stages.sh   # stage 1 done: go on from its checkpoint
+#
+# STAGE3_CURRICULUM=1 (default 0) keeps the terrain curriculum on in stage 3: the worlds go on from
+# the levels stage 2's curriculum left them on (up to level 4), with desired KL 0.01 instead of
+# 0.02. Run 14 is run 13's stages 1-2 followed by such a stage 3:
+#   mkdir -p outputs/oracle_h1_run14 && ln -s ../oracle_h1_feedforward/stage1 ../oracle_h1_feedforward/stage2 outputs/oracle_h1_run14/
+#   FEEDFORWARD=1 STAGE3_CURRICULUM=1 FROM_STAGE=3 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_h1_run14
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-outputs/oracle_h1_clock}
@@ -31,8 +37,12 @@ stage 1 2703360 env.levels=[0] env.cmd_speed=0.3 "env.reward_overrides={alive: 1
 # 2: walk: faster command, smaller alive bonus
 stage 2 8540160 env.levels=[0] env.cmd_speed=0.5 "env.reward_overrides={alive: 4.0, termination: -100.0}" "${GAIT[@]}"
 # 3: levels 0 and 1 in equal shares, worlds restart there; entropy 0.001, std capped at 0.5, desired KL 0.02
-stage 3 14991360 "env.levels=[0,1]" env.curriculum=false env.cmd_speed=0.5 \
-    "env.reward_overrides={alive: 4.0, termination: -100.0}" checkpoint.keep_curriculum=false \
-    ppo.entropy_coeff=0.001 model.max_std=0.5 ppo.desired_kl=0.02 "${GAIT[@]}"
+if [ "${STAGE3_CURRICULUM:-0}" = 1 ]; then
+  LEVELS3=(env.curriculum=true checkpoint.keep_curriculum=true ppo.desired_kl=0.01)
+else
+  LEVELS3=("env.levels=[0,1]" env.curriculum=false checkpoint.keep_curriculum=false ppo.desired_kl=0.02)
+fi
+stage 3 14991360 "${LEVELS3[@]}" env.cmd_speed=0.5 "env.reward_overrides={alive: 4.0, termination: -100.0}" \
+    ppo.entropy_coeff=0.001 model.max_std=0.5 "${GAIT[@]}"
 
 "$PY" recipes/export_policy.py "$OUT/stage3/last.pt" "$OUT/oracle_h1.pt"

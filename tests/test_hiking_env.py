@@ -53,6 +53,27 @@ def test_partial_reset_isolates_worlds():
     assert not td["done"].any()
 
 
+def test_partial_reset_refreshes_only_the_reset_rows_and_they_match_a_full_recompute():
+    """A partial reset recomputes the observations of the reset worlds only; every row of its
+    output equals what a full recompute from the current state gives, and the reset worlds read
+    a fresh depth frame (perception tick True)."""
+    env = make(n=4, mode="student")
+    env.reset()
+    for _ in range(3):
+        act(env, 0.5 * torch.randn(4, env.A))
+    stepped = act(env, 0.5 * torch.randn(4, env.A))
+    mask = torch.tensor([[False], [True], [False], [True]])
+    td = env._reset(TensorDict({"_reset": mask}, batch_size=[4]))
+    full = env._full_observations()
+    for key, value in full.items():
+        assert np.allclose(td[key].numpy(), np.asarray(value, dtype=np.float32)), key
+    assert td["perception_tick"].reshape(-1).tolist() == [False, True, False, True]
+    keep = [0, 2]  # untouched worlds: the same observation as after the step
+    for key in ("proprio", "scandots", "goal_gps", "privileged", "depth"):
+        assert torch.equal(td[key][keep], stepped[key][keep]), key
+    assert not torch.equal(td["proprio"][[1, 3]], stepped["proprio"][[1, 3]])
+
+
 def test_same_seed_same_rollout():
     outs = []
     for _ in range(2):

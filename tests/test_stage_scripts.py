@@ -84,3 +84,17 @@ def test_an_interrupted_stage_resumes_its_own_checkpoint(tmp_path):
     resumes = [value(c["overrides"], "checkpoint.resume") for c in calls]
     assert resumes[:3] == [f"{out}/stage{n}/last.pt" for n in (1, 2, 3)]
     assert resumes[3] == f"{out}/stage3/last.pt"  # stage 4 starts from the end of stage 3
+
+
+def test_clock_stage3_keeps_the_curriculum_when_asked(tmp_path):
+    """STAGE3_CURRICULUM=1 (run 14): stage 3 goes on from stage 2's levels with the curriculum on."""
+    script = ROOT / "recipes" / "oracle_h1_clock_stages.sh"
+    default = dry_run(script, tmp_path, {"FROM_STAGE": "3"})[0]["overrides"]
+    assert value(default, "env.curriculum") == "false" and value(default, "checkpoint.keep_curriculum") == "false"
+    assert value(default, "env.levels") == "[0,1]" and value(default, "ppo.desired_kl") == "0.02"
+    (tmp_path / "calls").unlink()
+    kept = dry_run(script, tmp_path, {"FROM_STAGE": "3", "STAGE3_CURRICULUM": "1"})[0]["overrides"]
+    assert value(kept, "env.curriculum") == "true" and value(kept, "checkpoint.keep_curriculum") == "true"
+    assert value(kept, "env.levels") is None and value(kept, "ppo.desired_kl") == "0.01"
+    assert value(kept, "model.max_std") == "0.5" and value(kept, "checkpoint.dir").endswith("/stage3")
+    validate_oracle_stage(kept)

@@ -96,6 +96,11 @@ class HikingEnv(EnvBase):
     Shapes: ``batch_size = [N]``; ``action`` (N, A) in [-clip, clip]; ``reward`` (N, 1);
     ``done``/``terminated``/``truncated`` (N, 1) bool.
 
+    Resets: a partial reset (a ``"_reset"`` (N, 1) mask, as torchrl's ``step_and_maybe_reset``
+    sends) re-spawns and re-reads only the masked worlds; the other rows of its output are the
+    observations of the last step, unchanged (the env keeps them), so a reset costs in proportion
+    to the worlds it resets.
+
     Example:
         >>> env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=8))
         >>> td = env.rollout(10)           # random actions
@@ -179,6 +184,7 @@ class HikingEnv(EnvBase):
             c = self.cfg.depth_camera
             self.depth = np.ones((N, 1, c.height, c.width), dtype=np.float32)
         self.tick = np.ones(N, dtype=bool)
+        self._obs: dict | None = None  # the last observation arrays, for partial resets
 
     def _make_specs(self) -> None:
         N, A, dev = self.cfg.num_envs, self.A, self.device
@@ -240,16 +246,29 @@ class HikingEnv(EnvBase):
             mask = tensordict.get("_reset").reshape(N).cpu().numpy().astype(bool)
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
         self._reset_worlds(ids)
-        state = self.read_state()
-        state["goal_dirs_w"] = self._goal_dirs(state["pos"])
+        self.tick[ids] = True  # a reset world gets a fresh depth frame
         self._render_depth(np.isin(np.arange(N), ids))
-        obs = self._observations(state)
+        if self._obs is None or ids.size == N:
+            obs = self._full_observations()
+        else:  # only the reset worlds changed since the last step: refresh their rows
+            state = self.read_state(ids)
+            state["goal_dirs_w"] = self._goal_dirs(state["pos"], ids)
+            for key, rows in self._observations(state, ids).items():
+                self._obs[key][ids] = rows
+            obs = self._obs
         zeros = np.zeros(N)
         out = self._to_td(obs, reward_terms={k: zeros for k in self.weights},
                           episode=self._empty_episode(), info=(np.zeros(N, bool), np.zeros(N, bool)))
         for key in ("done", "terminated", "truncated"):
             out.set(key, torch.zeros(N, 1, dtype=torch.bool, device=self.device))
         return out
+
+    def _full_observations(self) -> dict:
+        """Observations of every world from the current state (kept for the next partial reset)."""
+        state = self.read_state()
+        state["goal_dirs_w"] = self._goal_dirs(state["pos"])
+        self._obs = self._observations(state)
+        return self._obs
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         N, A = self.cfg.num_envs, self.A
@@ -305,7 +324,7 @@ class HikingEnv(EnvBase):
 
         self.tick = (self.episode_step % self.cfg.perception_every) == 0
         self._render_depth(self.tick)
-        obs = self._observations(state)
+        obs = self._obs = self._observations(state)
         self.dq_prev[:] = state["dq"]
         self.torques_prev[:] = state["torques"]
         out = self._to_td(obs, reward_terms=terms, episode=episode, info=(diverged, bad_action))
@@ -392,17 +411,19 @@ class HikingEnv(EnvBase):
         return ep
 
     # ------------------------------------------------------------------ state, rewards, obs
-    def read_state(self) -> dict:
+    def read_state(self, ids: np.ndarray | None = None) -> dict:
         """The worlds' current physical state as numpy arrays (observations and rewards start here).
 
-        Keys (N = num_envs): ``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,),
+        ``ids`` (n,) restricts it to those worlds (rows in that order); default: all N worlds.
+        Keys (N = num_envs, or n): ``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,),
         ``lin_vel_w``/``lin_vel_b``/``ang_vel_b`` (N, 3), ``q``/``dq``/``torques`` (N, A),
         ``contact`` (N, 2) bool, ``foot_lift`` (N, 2) m (foot height above the terrain under it,
         0 when standing), ``base_height`` (N,) m above the terrain, ``goal_dist`` (N,) m to P_B,
         and the rest of the reward inputs. Analysis tools (recipes/gait_stats.py) read it too.
         """
         w, b = self.worlds, self.built
-        qpos, qvel = w.qpos, w.qvel
+        sel = slice(None) if ids is None else ids
+        qpos, qvel = w.qpos[sel], w.qvel[sel]
         pos = qpos[:, 0:3].copy()
         quat = qpos[:, 3:7]
         rot = quat_to_rotmat(quat)
@@ -412,27 +433,28 @@ class HikingEnv(EnvBase):
         lin_vel_w = qvel[:, 0:3].copy()
         lin_vel_b = np.einsum("nji,nj->ni", rot, lin_vel_w)
         ang_vel_b = qvel[:, 3:6].copy()  # free joint: angular velocity in the body frame
-        sd = w.sensordata
+        sd = w.sensordata[sel]
         foot_force = np.stack([sd[:, a + 1 : a + 4] for a in b.foot_sensor_adr], axis=1)
         pen_force = np.stack([sd[:, a + 1 : a + 4] for a in b.penalised_sensor_adr], axis=1)
         contact = np.linalg.norm(foot_force, axis=-1) > CONTACT_FORCE_THRESHOLD
-        feet_pos = w.xpos[:, b.foot_body_ids]
+        feet_pos = w.xpos[sel][:, b.foot_body_ids]
         feet_xy = feet_pos[..., :2]
         foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
         # terrain under the base and under each foot, one lookup: (N,) then (N, 2)
         heights = self.trails.height_at(np.concatenate([pos[:, :2], feet_xy.reshape(-1, 2)]))
         ground, feet_ground = heights[: pos.shape[0]], heights[pos.shape[0] :].reshape(-1, 2)
-        goal_vec = self.end[:, :2] - pos[:, :2]
+        goal_vec = self.end[sel, :2] - pos[:, :2]
+        phase = self.gait_phase()
         return {
             "pos": pos, "rot": rot, "gravity_b": gravity_b, "roll": roll, "pitch": pitch, "yaw": yaw,
             "lin_vel_w": lin_vel_w, "lin_vel_b": lin_vel_b, "ang_vel_b": ang_vel_b,
             "q": qpos[:, b.qpos_adr].copy(), "dq": qvel[:, b.dof_adr].copy(),
-            "torques": w.actuator_force[:, b.actuator_ids].copy(),
+            "torques": w.actuator_force[sel][:, b.actuator_ids],
             "foot_force": foot_force, "pen_force": pen_force, "contact": contact,
             "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
             "goal_vec": goal_vec, "goal_dist": np.linalg.norm(goal_vec, axis=1),
             "feet_xy": feet_xy.copy(), "foot_lift": feet_pos[..., 2] - feet_ground - self.robot.foot_rest_height,
-            "gait_phase": self.gait_phase(),
+            "gait_phase": None if phase is None else phase[sel],
         }
 
     def _advance_goals(self, state: dict) -> None:
@@ -449,10 +471,11 @@ class HikingEnv(EnvBase):
         self.metrics.goals_passed += (reached & (self.goal_idx < last)).astype(np.int64)
         self.goal_idx = np.where(move, self.goal_idx + 1, self.goal_idx)
 
-    def _goal_dirs(self, pos: np.ndarray) -> np.ndarray:
-        """Unit world-frame xy directions to the next ``num_goals`` expert goals, (N, k, 2)."""
-        n = np.arange(self.cfg.num_envs)[:, None]
-        idx = np.minimum(self.goal_idx[:, None] + np.arange(self.cfg.num_goals)[None], self.num_goals[:, None] - 1)
+    def _goal_dirs(self, pos: np.ndarray, ids: np.ndarray | None = None) -> np.ndarray:
+        """Unit world-frame xy directions to the next ``num_goals`` expert goals, (N, k, 2), or
+        (n, k, 2) for worlds ``ids`` with ``pos`` (n, 3) their positions."""
+        n = (np.arange(self.cfg.num_envs) if ids is None else ids)[:, None]
+        idx = np.minimum(self.goal_idx[n] + np.arange(self.cfg.num_goals)[None], self.num_goals[n] - 1)
         vec = self.goals[n, idx, :2] - pos[:, None, :2]
         return vec / np.maximum(np.linalg.norm(vec, axis=-1, keepdims=True), 1e-6)
 
@@ -517,7 +540,10 @@ class HikingEnv(EnvBase):
                 z_min=self.trails.min_height_near(pos[:, :2]) if hasattr(self.trails, "min_height_near") else None,
             )
 
-    def _observations(self, s: dict) -> dict:
+    def _observations(self, s: dict, ids: np.ndarray | None = None) -> dict:
+        """Observation arrays of all worlds from ``s`` (read_state), or of worlds ``ids`` from
+        their rows ``s = read_state(ids)``."""
+        sel = slice(None) if ids is None else ids
         yaw = s["yaw"]
         proprio = np.concatenate(
             [
@@ -525,7 +551,7 @@ class HikingEnv(EnvBase):
                 np.stack([s["roll"], s["pitch"]], axis=1),
                 s["q"] - self.q_default,
                 s["dq"] * DOF_VEL_SCALE,
-                self.action,
+                self.action[sel],
                 s["contact"].astype(np.float64),
                 *self._gait_clock(s["gait_phase"]),
             ],
@@ -535,14 +561,14 @@ class HikingEnv(EnvBase):
         obs = {
             "proprio": proprio,
             "goal_gps": world_to_yaw_frame(s["goal_vec"], yaw),
-            "waypoint_gps": world_to_yaw_frame(self.waypoint[:, :2] - s["pos"][:, :2], yaw),
+            "waypoint_gps": world_to_yaw_frame(self.waypoint[sel, :2] - s["pos"][:, :2], yaw),
             "scandots": scandots(s["pos"], yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target),
-            "privileged": np.concatenate([s["lin_vel_b"] * LIN_VEL_SCALE, self.randomizer.privileged()], axis=1),
+            "privileged": np.concatenate([s["lin_vel_b"] * LIN_VEL_SCALE, self.randomizer.privileged()[sel]], axis=1),
             "expert_goals": dirs_b,
-            "perception_tick": self.tick[:, None],
+            "perception_tick": self.tick[sel, None],
         }
         if self.depth is not None:
-            obs["depth"] = self.depth
+            obs["depth"] = self.depth[sel]
         return obs
 
     @staticmethod
