@@ -8,6 +8,12 @@ logs all of it to wandb (offline by default).
     python recipes/evaluate.py checkpoint=outputs/oracle_h1/last.pt
     python recipes/evaluate.py checkpoint=outputs/oracle_h1/last.pt protocol=paper
     python recipes/evaluate.py checkpoint=zero robot=g1       # PD-hold baseline, no policy
+    python recipes/evaluate.py checkpoint=... trail_seeds=[0,1,2]   # three trail sets pooled
+
+``trail_seeds`` repeats the protocol on trail grids generated with each seed (new trails, same
+categories, levels and variants). A deterministic policy on an unrandomised trail has a single
+outcome, so a few variants are a small sample; each trail set counts as one run of the tables'
+mean +- std.
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported: off-screen rendering
 
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import hydra  # noqa: E402
@@ -49,17 +56,36 @@ def protocol_of(cfg: DictConfig) -> EvalProtocol:
     )
 
 
+def trail_seeds_of(cfg: DictConfig) -> list[int]:
+    """The trail-grid seeds to evaluate on: ``cfg.trail_seeds`` or ``[cfg.seed]``."""
+    seeds = cfg.get("trail_seeds")
+    if seeds is None:
+        return [int(cfg.seed)]
+    seeds = [int(s) for s in seeds]
+    if not seeds or len(set(seeds)) != len(seeds):
+        raise ValueError(f"trail_seeds must be a non-empty list of distinct seeds, got {seeds}")
+    return seeds
+
+
 def evaluate(cfg: DictConfig) -> dict:
     """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
     if cfg.checkpoint is None:
         raise ValueError("checkpoint is required: a .pt file from a recipe, or 'zero' for the PD-hold baseline")
     protocol = protocol_of(cfg)
+    seeds = trail_seeds_of(cfg)
     torch.set_num_threads(1)
-    env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
-                                    seed=int(cfg.seed), num_threads=cfg.num_threads)
     out_dir = Path(cfg.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    result = run_protocol(env, policy, protocol)
+    episodes = []
+    for i, seed in enumerate(seeds):  # trail set i: runs i * runs .. (i + 1) * runs - 1
+        env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
+                                        seed=seed, num_threads=cfg.num_threads)
+        part = run_protocol(env, policy, replace(protocol, seed=seed))
+        episodes += [{**e, "run": i * protocol.runs + e["run"], "trail_seed": seed} for e in part.episodes]
+        if i == 0:
+            first_env, first_policy, result = env, policy, part
+    env, policy = first_env, first_policy  # the plot and the video show the first trail set
+    result.episodes = episodes
     rows = aggregate(result.episodes)
     table = markdown_table(rows)
     (out_dir / "table.md").write_text(table + "\n")
@@ -69,7 +95,8 @@ def evaluate(cfg: DictConfig) -> dict:
     plot = plot_trajectories(env, result, out_dir / "trajectories.png")
     video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
     print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
-          f"{len(protocol.categories)} categories x {len(protocol.levels)} levels x {protocol.runs} runs)\n")
+          f"{len(protocol.categories)} categories x {len(protocol.levels)} levels x {protocol.runs} runs "
+          f"x {len(seeds)} trail sets, seeds {seeds})\n")
     print(table)
     print("\nby level:\n" + level_table)
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(out_dir / "logs"), cfg.logger.project,

@@ -4,6 +4,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from hydra import compose, initialize_config_dir
@@ -144,6 +145,30 @@ def test_evaluate_zero_policy_writes_artefacts(tmp_path):
         assert Path(out[key]).is_file()
     if out["video"] is not None:  # needs an OpenGL context (EGL/OSMesa)
         assert Path(out["video"]).stat().st_size > 1000
+
+
+def test_evaluate_pools_trail_sets_as_runs(tmp_path, monkeypatch):
+    """trail_seeds=[0,1]: the protocol on two trail grids (built with those seeds), each one run
+    of the tables' mean +- std."""
+    seeds, tiles = [], []
+    real = evaluate_recipe.load_policy
+
+    def spy(*args, **kwargs):
+        env, policy, kind = real(*args, **kwargs)
+        seeds.append(kwargs["seed"])
+        tiles.append(env.trails.tile_end.copy())
+        return env, policy, kind
+
+    monkeypatch.setattr(evaluate_recipe, "load_policy", spy)
+    base = ["checkpoint=zero", "categories=[randommix]", "levels=[1]", "robots_per_cell=2", "variants=1",
+            "num_threads=1", "video=false", "logger.backend=csv"]
+    out = evaluate_recipe.evaluate(cfg_of("evaluate", base + ["trail_seeds=[0,1]", f"output_dir={tmp_path}"]))
+    assert seeds == [0, 1] and not np.allclose(tiles[0], tiles[1])  # two different trail grids
+    assert [(e["run"], e["trail_seed"]) for e in out["episodes"]] == [(0, 0), (0, 0), (1, 1), (1, 1)]
+    ttf = [np.mean([e["ttf"] for e in out["episodes"] if e["run"] == r]) for r in (0, 1)]
+    assert out["rows"]["overall"]["ttf"] == pytest.approx((np.mean(ttf), np.std(ttf)))
+    with pytest.raises(ValueError, match=r"trail_seeds must be a non-empty list of distinct seeds, got \[3, 3\]"):
+        evaluate_recipe.evaluate(cfg_of("evaluate", base + ["trail_seeds=[3,3]", f"output_dir={tmp_path}"]))
 
 
 def test_exported_policy_is_slim_and_evaluates(tmp_path):
