@@ -254,7 +254,7 @@ def test_gait_stats_read_feet_on_the_ground_for_a_standing_robot():
 
 
 def test_the_committed_oracle_walks_lifting_its_feet():
-    """checkpoints/oracle_h1.pt (run 13, gait feedforward) steps: feet well off the ground, forward speed."""
+    """checkpoints/oracle_h1.pt (run 14, gait feedforward) steps: feet well off the ground, forward speed."""
     import gait_stats
 
     s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=4.0)
