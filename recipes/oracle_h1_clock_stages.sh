@@ -21,11 +21,15 @@
 # 0.02. Run 14 is run 13's stages 1-2 followed by such a stage 3:
 #   mkdir -p outputs/oracle_h1_run14 && ln -s ../oracle_h1_feedforward/stage1 ../oracle_h1_feedforward/stage2 outputs/oracle_h1_run14/
 #   FEEDFORWARD=1 STAGE3_CURRICULUM=1 FROM_STAGE=3 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_h1_run14
+#
+# ROBOT (default h1) is env.robot: ROBOT=g1 runs the same schedule on G1 (G1 run 2 in RESULTS.md):
+#   ROBOT=g1 FEEDFORWARD=1 STAGE3_CURRICULUM=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_g1_run2
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-outputs/oracle_h1_clock}
 PY=${PYTHON:-python}
-COMMON=(env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=[256,128,64] model.init_std=0.5
+ROBOT=${ROBOT:-h1}
+COMMON=(env.robot="$ROBOT" env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=[256,128,64] model.init_std=0.5
         checkpoint.every=10 logger.backend=csv env.gait_period=0.8 env.gait_feedforward="${FEEDFORWARD:-0}")
 # after each stage's reward_overrides (which replaces the whole dict)
 GAIT=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.gait_joint_ref=4.0)
@@ -45,4 +49,4 @@ fi
 stage 3 14991360 "${LEVELS3[@]}" env.cmd_speed=0.5 "env.reward_overrides={alive: 4.0, termination: -100.0}" \
     ppo.entropy_coeff=0.001 model.max_std=0.5 "${GAIT[@]}"
 
-"$PY" recipes/export_policy.py "$OUT/stage3/last.pt" "$OUT/oracle_h1.pt"
+"$PY" recipes/export_policy.py "$OUT/stage3/last.pt" "$OUT/oracle_$ROBOT.pt"

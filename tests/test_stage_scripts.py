@@ -98,3 +98,20 @@ def test_clock_stage3_keeps_the_curriculum_when_asked(tmp_path):
     assert value(kept, "env.levels") is None and value(kept, "ppo.desired_kl") == "0.01"
     assert value(kept, "model.max_std") == "0.5" and value(kept, "checkpoint.dir").endswith("/stage3")
     validate_oracle_stage(kept)
+
+
+def test_clock_stages_take_the_robot_from_ROBOT(tmp_path):
+    """ROBOT=g1 (G1 run 2) puts env.robot=g1 in every stage and names the export oracle_g1.pt;
+    the default stays H1."""
+    script = ROOT / "recipes" / "oracle_h1_clock_stages.sh"
+    default = dry_run(script, tmp_path)
+    assert [value(c["overrides"], "env.robot") for c in default[:3]] == ["h1"] * 3
+    assert default[3]["overrides"][-1].endswith("/oracle_h1.pt")
+    (tmp_path / "calls").unlink()
+    g1 = dry_run(script, tmp_path, {"ROBOT": "g1", "FEEDFORWARD": "1", "STAGE3_CURRICULUM": "1"})
+    assert [c["recipe"] for c in g1] == ["oracle_ppo"] * 3 + ["export_policy"]
+    for call in g1[:3]:
+        assert value(call["overrides"], "env.robot") == "g1"
+        assert value(call["overrides"], "env.gait_feedforward") == "1"
+        validate_oracle_stage(call["overrides"])
+    assert g1[3]["overrides"] == [f"{tmp_path}/out/stage3/last.pt", f"{tmp_path}/out/oracle_g1.pt"]
