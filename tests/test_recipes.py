@@ -260,3 +260,41 @@ def test_the_committed_oracle_walks_lifting_its_feet():
     s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=4.0)
     assert s["standing"] == 4
     assert s["lift_p95"] > 0.10 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s
+
+
+def test_route_following_geometry_helpers_match_hand_computed_values():
+    import route_following as rf
+
+    assert rf.signed_yaw_deg(np.array([1.0, 1.0])) == pytest.approx(45.0)
+    assert rf.signed_yaw_deg(np.array([0.0, -2.0])) == pytest.approx(-90.0)
+    a170, am170 = np.radians(170.0), np.radians(-170.0)
+    assert rf.angle_between_deg(np.array([math.cos(a170), math.sin(a170)]),
+                                np.array([math.cos(am170), math.sin(am170)])) == pytest.approx(20.0)
+    # polyline (0,0) -> (2,0) -> (2,2); a second row with 2 vertices (its third is junk); a single point
+    points = np.array([[[0, 0], [2, 0], [2, 2]], [[0, 0], [0, 4], [50, 50]], [[1, 1], [9, 9], [9, 9]]], float)
+    count = np.array([3, 2, 1])
+    xy = np.array([[1.0, 0.5], [3.0, 1.0], [1.0, 1.0]])
+    assert rf.distance_to_polyline(xy, points, count) == pytest.approx([0.5, 3.0, 0.0])
+    xy = np.array([[-1.0, 0.0], [-3.0, 5.0], [4.0, 5.0]])
+    assert rf.distance_to_polyline(xy, points, count) == pytest.approx([1.0, math.hypot(3, 1), 5.0])
+
+
+def test_route_following_of_a_standing_robot_and_of_the_committed_oracle():
+    """A robot holding its pose at P_A faces its first expert goal and stands on the route; the
+    committed oracle keeps within 0.5 m of the route, heading to its goals, for 6 s (the gait test
+    checks that it walks)."""
+    import route_following as rf
+
+    zero = rf.route_following("zero", robots=2, seconds=0.4)
+    assert zero["expert_yaw"].shape == (20, 2) and zero["time"][1] == pytest.approx(0.02)
+    assert np.abs(zero["expert_yaw"][0]).max() < 1.0 and np.abs(zero["end_yaw"][0]).max() < 45.0
+    assert zero["route_offset"].max() < 0.1
+    assert np.isnan(zero["pred_yaw"]).all() and np.isnan(zero["pred_error"]).all()
+    table = rf.summary_table(zero, bin_s=0.2)
+    assert table.count("\n") == 3 and "| - | - |" in table
+    with pytest.raises(ValueError, match="robots >= 1"):
+        rf.route_following("zero", robots=0)
+
+    oracle = rf.route_following(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=6.0)
+    assert np.isfinite(oracle["route_offset"]).all() and oracle["route_offset"].max() < 0.5
+    assert np.nanmedian(np.abs(oracle["expert_yaw"])) < 15.0

@@ -1,0 +1,162 @@
+"""How well a policy keeps to the trail's route: heading errors and distance from the route over time.
+
+    python recipes/route_following.py checkpoints/oracle_h1.pt              # RandomMix level 0, 8 robots
+    python recipes/route_following.py checkpoints/student_h1.pt --level 1
+
+The policy acts deterministically on an evaluation env (no randomisation, no spawn jitter) built
+from the checkpoint, as in ``recipes/evaluate.py``. At every control step of every robot still
+on its first episode it records:
+
+* the signed yaw of its current expert goal in its heading frame (``expert_goals`` row 0;
+  positive: the goal lies to the left), and of the trail end P_B (``goal_gps``);
+* for a student, the signed yaw of its own predicted next goal (``goals_uni`` row 0) and the
+  angle between that prediction and the expert goal;
+* its distance from the route, the polyline P_A -> expert goals -> P_B.
+
+A policy that follows the route keeps all of these near 0. Trail Completion (docs/metrics.md)
+counts expert goals passed within 0.5 m, so a route offset above 0.5 m costs TC even when the
+robot reaches P_B. The table is printed in time bins (median over robots and steps, and the
+mean of the signed yaws, which shows a steady bias to one side).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import torch
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from legoh_rl.training.evaluation import EvalProtocol
+from legoh_rl.training.policies import load_policy
+
+COLUMNS = ("expert_yaw", "end_yaw", "pred_yaw", "pred_error", "route_offset")
+
+
+def signed_yaw_deg(vec: np.ndarray) -> np.ndarray:
+    """(...,) signed angle of (..., 2) vectors (x forward, y left) in degrees, in (-180, 180]."""
+    return np.degrees(np.arctan2(vec[..., 1], vec[..., 0]))
+
+
+def angle_between_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(...,) unsigned angle between (..., 2) vectors in degrees, in [0, 180]."""
+    d = np.abs(signed_yaw_deg(a) - signed_yaw_deg(b))
+    return np.minimum(d, 360.0 - d)
+
+
+def distance_to_polyline(xy: np.ndarray, points: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(N,) distance of each point ``xy`` (N, 2) from its polyline ``points[i, :count[i]]``.
+
+    Args:
+        xy: (N, 2) query points.
+        points: (N, K, 2) polyline vertices; rows past ``count[i]`` are ignored.
+        count: (N,) number of vertices of each polyline (>= 1).
+    """
+    a, b = points[:, :-1], points[:, 1:]  # (N, K-1, 2) segments
+    ab = b - a
+    t = np.einsum("nkd,nkd->nk", xy[:, None] - a, ab) / np.maximum(np.einsum("nkd,nkd->nk", ab, ab), 1e-12)
+    nearest = a + np.clip(t, 0.0, 1.0)[..., None] * ab
+    dist = np.linalg.norm(xy[:, None] - nearest, axis=-1)
+    valid = np.arange(points.shape[1] - 1)[None] < (count[:, None] - 1)
+    single = np.linalg.norm(xy - points[:, 0], axis=-1)  # a one-vertex polyline is a point
+    return np.where(count > 1, np.where(valid, dist, np.inf).min(axis=1, initial=np.inf), single)
+
+
+def route_following(checkpoint: str, category: str = "randommix", level: int = 0, robots: int = 8,
+                    seconds: float = 30.0, seed: int = 0, variants: int = 8) -> dict[str, np.ndarray]:
+    """Per-step route figures of ``checkpoint``'s policy (``"zero"``: hold the default pose).
+
+    Returns:
+        ``{"time": (T,) s, "expert_yaw", "end_yaw", "pred_yaw": (T, robots) signed degrees,
+        "pred_error": (T, robots) degrees, "route_offset": (T, robots) m}``; NaN once a robot's
+        first episode has ended, and ``pred_*`` all NaN for a policy without ``goals_uni``
+        (the oracle).
+    """
+    if robots < 1 or seconds <= 0:
+        raise ValueError(f"need robots >= 1 and seconds > 0, got robots={robots}, seconds={seconds}")
+    protocol = EvalProtocol(categories=(category,), levels=(level,), robots_per_cell=robots, seed=seed)
+    env, policy, _ = load_policy(checkpoint, protocol, variants=variants, seed=seed, num_threads=1)
+    base = getattr(env, "base_env", env)
+    env.set_seed(seed)
+    base.assign_tiles(np.full(robots, level), np.full(robots, base.trails.categories.index(category)))
+    td = env.reset()
+    route = np.concatenate([base.start[:, None, :2], base.goals[:, :, :2]], axis=1)
+    vertices = base.num_goals + 1
+    rows = {k: [] for k in COLUMNS}
+    ended = np.zeros(robots, bool)
+    steps = min(int(round(seconds / base.dt)), base.max_steps)
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(steps):
+            td = policy(td)
+            expert = td["expert_goals"].numpy()[:, 0]
+            pred = td["goals_uni"].numpy()[:, 0] if "goals_uni" in td.keys() else np.full_like(expert, np.nan)
+            values = {
+                "expert_yaw": signed_yaw_deg(expert), "end_yaw": signed_yaw_deg(td["goal_gps"].numpy()),
+                "pred_yaw": signed_yaw_deg(pred), "pred_error": angle_between_deg(pred, expert),
+                "route_offset": distance_to_polyline(base.worlds.qpos[:, :2], route, vertices),
+            }
+            for k, v in values.items():
+                rows[k].append(np.where(ended, np.nan, v))
+            out, td = env.step_and_maybe_reset(td)
+            ended |= out["next", "done"].reshape(-1).numpy()
+            if ended.all():
+                break
+    result = {k: np.array(v) for k, v in rows.items()}
+    result["time"] = np.arange(len(rows["expert_yaw"])) * base.dt
+    return result
+
+
+def summary_table(result: dict[str, np.ndarray], bin_s: float = 2.0) -> str:
+    """A markdown table of ``result`` in time bins: |median| and mean of the signed yaws (deg),
+    median prediction error (deg) and median / max route offset (m)."""
+    lines = ["| time (s) | robots | expert goal yaw: median abs / mean | P_B yaw: median abs / mean "
+             "| predicted goal yaw: median abs / mean | prediction error | route offset: median / max |",
+             "|---|---:|---|---|---|---:|---|"]
+    t = result["time"]
+    edges = np.arange(0.0, t[-1] + bin_s, bin_s) if t.size else np.array([0.0])
+    for lo in edges:
+        sel = (t >= lo) & (t < lo + bin_s)
+        if not sel.any():
+            continue
+        alive = int(np.isfinite(result["route_offset"][sel][0]).sum())
+        if alive == 0:
+            continue
+
+        def pair(key: str) -> str:
+            v = result[key][sel]
+            if np.isnan(v).all():
+                return "-"
+            return f"{np.nanmedian(np.abs(v)):.0f} / {np.nanmean(v):+.0f}"
+
+        err = result["pred_error"][sel]
+        err_s = "-" if np.isnan(err).all() else f"{np.nanmedian(err):.0f}"
+        off = result["route_offset"][sel]
+        lines.append(f"| {lo:.0f}-{lo + bin_s:.0f} | {alive} | {pair('expert_yaw')} | {pair('end_yaw')} "
+                     f"| {pair('pred_yaw')} | {err_s} | {np.nanmedian(off):.2f} / {np.nanmax(off):.2f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("checkpoint", help="a policy checkpoint, or 'zero' (hold the default pose)")
+    parser.add_argument("--category", default="randommix")
+    parser.add_argument("--level", type=int, default=0)
+    parser.add_argument("--robots", type=int, default=8)
+    parser.add_argument("--seconds", type=float, default=30.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--variants", type=int, default=8)
+    parser.add_argument("--bin", type=float, default=2.0, help="time bin of the table, s")
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    result = route_following(args.checkpoint, args.category, args.level, args.robots, args.seconds, args.seed,
+                             args.variants)
+    print(f"{args.checkpoint} on {args.category} level {args.level} (seed {args.seed}, {args.robots} robots); "
+          "yaws in degrees, positive = to the left of the heading")
+    print(summary_table(result, args.bin))
+    offset = result["route_offset"][np.isfinite(result["route_offset"])]
+    print(f"over the run: median route offset {np.median(offset):.2f} m, share of robot-steps more than 0.5 m "
+          f"off the route {np.mean(offset > 0.5) * 100:.0f}%")
+
+
+if __name__ == "__main__":
+    main()
