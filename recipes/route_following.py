@@ -121,19 +121,19 @@ def summary_table(result: dict[str, np.ndarray], bin_s: float = 2.0) -> str:
         alive = int(np.isfinite(result["route_offset"][sel][0]).sum())
         if alive == 0:
             continue
-
-        def pair(key: str) -> str:
-            v = result[key][sel]
-            if np.isnan(v).all():
-                return "-"
-            return f"{np.nanmedian(np.abs(v)):.0f} / {np.nanmean(v):+.0f}"
-
         err = result["pred_error"][sel]
         err_s = "-" if np.isnan(err).all() else f"{np.nanmedian(err):.0f}"
         off = result["route_offset"][sel]
-        lines.append(f"| {lo:.0f}-{lo + bin_s:.0f} | {alive} | {pair('expert_yaw')} | {pair('end_yaw')} "
-                     f"| {pair('pred_yaw')} | {err_s} | {np.nanmedian(off):.2f} / {np.nanmax(off):.2f} |")
+        lines.append(f"| {lo:.0f}-{lo + bin_s:.0f} | {alive} | {_yaw_pair(result['expert_yaw'][sel])} | {_yaw_pair(result['end_yaw'][sel])} "
+                     f"| {_yaw_pair(result['pred_yaw'][sel])} | {err_s} | {np.nanmedian(off):.2f} / {np.nanmax(off):.2f} |")
     return "\n".join(lines)
+
+
+def _yaw_pair(v: np.ndarray) -> str:
+    """'median |v| / mean v' of signed yaws, or '-' when all are NaN."""
+    if np.isnan(v).all():
+        return "-"
+    return f"{np.nanmedian(np.abs(v)):.0f} / {np.nanmean(v):+.0f}"
 
 
 def main() -> None:
