@@ -9,9 +9,16 @@ on its first episode it records:
 
 * the signed yaw of its current expert goal in its heading frame (``expert_goals`` row 0;
   positive: the goal lies to the left), and of the trail end P_B (``goal_gps``);
+* the signed angle from that goal to the direction the base moves in (course error; positive:
+  it moves to the left of the goal; NaN below 0.1 m/s), which differs from the goal's yaw when
+  the robot walks with its torso turned;
 * for a student, the signed yaw of its own predicted next goal (``goals_uni`` row 0) and the
   angle between that prediction and the expert goal;
 * its distance from the route, the polyline P_A -> expert goals -> P_B.
+
+``--goal-source expert`` (students only) feeds the locomotion module the expert goal in place
+of its own predicted one (``goal_next``), which separates navigation errors (the predicted
+goal points the wrong way) from steering errors (the robot does not turn towards its goal).
 
 A policy that follows the route keeps all of these near 0. Trail Completion (docs/metrics.md)
 counts expert goals passed within 0.5 m, so a route offset above 0.5 m costs TC even when the
@@ -25,12 +32,14 @@ import argparse
 
 import numpy as np
 import torch
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from legoh_rl.envs.sensors import world_to_yaw_frame, yaw_from_quat
 from legoh_rl.training.evaluation import EvalProtocol
 from legoh_rl.training.policies import load_policy
 
-COLUMNS = ("expert_yaw", "end_yaw", "pred_yaw", "pred_error", "route_offset")
+COLUMNS = ("expert_yaw", "course_error", "end_yaw", "pred_yaw", "pred_error", "route_offset")
 
 
 def signed_yaw_deg(vec: np.ndarray) -> np.ndarray:
@@ -42,6 +51,22 @@ def angle_between_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(...,) unsigned angle between (..., 2) vectors in degrees, in [0, 180]."""
     d = np.abs(signed_yaw_deg(a) - signed_yaw_deg(b))
     return np.minimum(d, 360.0 - d)
+
+
+def course_error_deg(goal_yaw_frame: np.ndarray, vel_world: np.ndarray, yaw: np.ndarray,
+                     min_speed: float = 0.1) -> np.ndarray:
+    """(N,) signed angle (deg) from the goal direction to the horizontal velocity.
+
+    Args:
+        goal_yaw_frame: (N, 2) goal direction in the robot's yaw frame.
+        vel_world: (N, 2) horizontal base velocity, world frame, m/s.
+        yaw: (N,) the robot's heading, rad.
+        min_speed: below this speed the course is undefined (NaN).
+    """
+    vel = world_to_yaw_frame(vel_world, yaw)
+    d = signed_yaw_deg(vel) - signed_yaw_deg(goal_yaw_frame)
+    d = (d + 180.0) % 360.0 - 180.0
+    return np.where(np.linalg.norm(vel_world, axis=-1) >= min_speed, d, np.nan)
 
 
 def distance_to_polyline(xy: np.ndarray, points: np.ndarray, count: np.ndarray) -> np.ndarray:
@@ -63,19 +88,29 @@ def distance_to_polyline(xy: np.ndarray, points: np.ndarray, count: np.ndarray) 
 
 
 def route_following(checkpoint: str, category: str = "randommix", level: int = 0, robots: int = 8,
-                    seconds: float = 30.0, seed: int = 0, variants: int = 8) -> dict[str, np.ndarray]:
+                    seconds: float = 30.0, seed: int = 0, variants: int = 8,
+                    goal_source: str = "predicted") -> dict[str, np.ndarray]:
     """Per-step route figures of ``checkpoint``'s policy (``"zero"``: hold the default pose).
 
     Returns:
-        ``{"time": (T,) s, "expert_yaw", "end_yaw", "pred_yaw": (T, robots) signed degrees,
+        ``{"time": (T,) s, "expert_yaw", "course_error", "end_yaw", "pred_yaw": (T, robots) signed degrees,
         "pred_error": (T, robots) degrees, "route_offset": (T, robots) m}``; NaN once a robot's
         first episode has ended, and ``pred_*`` all NaN for a policy without ``goals_uni``
-        (the oracle).
+        (the oracle). ``goal_source="expert"`` gives a student's locomotion module the current
+        expert goal as ``goal_next`` (the predicted goals are still recorded).
+
+    Raises:
+        ValueError: bad ``robots``/``seconds``, an unknown ``goal_source``, or ``"expert"`` for a
+            policy that is not a student.
     """
     if robots < 1 or seconds <= 0:
         raise ValueError(f"need robots >= 1 and seconds > 0, got robots={robots}, seconds={seconds}")
     protocol = EvalProtocol(categories=(category,), levels=(level,), robots_per_cell=robots, seed=seed)
-    env, policy, _ = load_policy(checkpoint, protocol, variants=variants, seed=seed, num_threads=1)
+    if goal_source not in ("predicted", "expert"):
+        raise ValueError(f"goal_source must be 'predicted' or 'expert', got {goal_source!r}")
+    env, policy, kind = load_policy(checkpoint, protocol, variants=variants, seed=seed, num_threads=1)
+    if goal_source == "expert":
+        policy = with_expert_goal(policy, kind)
     base = getattr(env, "base_env", env)
     env.set_seed(seed)
     base.assign_tiles(np.full(robots, level), np.full(robots, base.trails.categories.index(category)))
@@ -91,7 +126,10 @@ def route_following(checkpoint: str, category: str = "randommix", level: int = 0
             expert = td["expert_goals"].numpy()[:, 0]
             pred = td["goals_uni"].numpy()[:, 0] if "goals_uni" in td.keys() else np.full_like(expert, np.nan)
             values = {
-                "expert_yaw": signed_yaw_deg(expert), "end_yaw": signed_yaw_deg(td["goal_gps"].numpy()),
+                "expert_yaw": signed_yaw_deg(expert),
+                "course_error": course_error_deg(expert, base.worlds.qvel[:, :2],
+                                                 yaw_from_quat(base.worlds.qpos[:, 3:7])),
+                "end_yaw": signed_yaw_deg(td["goal_gps"].numpy()),
                 "pred_yaw": signed_yaw_deg(pred), "pred_error": angle_between_deg(pred, expert),
                 "route_offset": distance_to_polyline(base.worlds.qpos[:, :2], route, vertices),
             }
@@ -106,12 +144,22 @@ def route_following(checkpoint: str, category: str = "randommix", level: int = 0
     return result
 
 
+def with_expert_goal(policy: TensorDictSequential, kind: str) -> TensorDictSequential:
+    """A student's ``(hold, locomotion)`` policy with ``goal_next`` overwritten by row 0 of
+    ``expert_goals`` (N, 2) between the two."""
+    if not kind.startswith("student"):
+        raise ValueError(f"goal_source='expert' needs a student checkpoint, got a {kind} policy")
+    expert = TensorDictModule(lambda goals: goals[..., 0, :].clone(), in_keys=["expert_goals"], out_keys=["goal_next"])
+    hold, actor = policy[0], policy[1]
+    return TensorDictSequential(hold, expert, actor)
+
+
 def summary_table(result: dict[str, np.ndarray], bin_s: float = 2.0) -> str:
     """A markdown table of ``result`` in time bins: |median| and mean of the signed yaws (deg),
     median prediction error (deg) and median / max route offset (m)."""
-    lines = ["| time (s) | robots | expert goal yaw: median abs / mean | P_B yaw: median abs / mean "
-             "| predicted goal yaw: median abs / mean | prediction error | route offset: median / max |",
-             "|---|---:|---|---|---|---:|---|"]
+    lines = ["| time (s) | robots | expert goal yaw: median abs / mean | course error: median abs / mean "
+             "| P_B yaw: median abs / mean | predicted goal yaw: median abs / mean | prediction error | route offset: median / max |",
+             "|---|---:|---|---|---|---|---:|---|"]
     t = result["time"]
     edges = np.arange(0.0, t[-1] + bin_s, bin_s) if t.size else np.array([0.0])
     for lo in edges:
@@ -124,8 +172,8 @@ def summary_table(result: dict[str, np.ndarray], bin_s: float = 2.0) -> str:
         err = result["pred_error"][sel]
         err_s = "-" if np.isnan(err).all() else f"{np.nanmedian(err):.0f}"
         off = result["route_offset"][sel]
-        lines.append(f"| {lo:.0f}-{lo + bin_s:.0f} | {alive} | {_yaw_pair(result['expert_yaw'][sel])} | {_yaw_pair(result['end_yaw'][sel])} "
-                     f"| {_yaw_pair(result['pred_yaw'][sel])} | {err_s} | {np.nanmedian(off):.2f} / {np.nanmax(off):.2f} |")
+        yaws = " | ".join(_yaw_pair(result[k][sel]) for k in ("expert_yaw", "course_error", "end_yaw", "pred_yaw"))
+        lines.append(f"| {lo:.0f}-{lo + bin_s:.0f} | {alive} | {yaws} | {err_s} | {np.nanmedian(off):.2f} / {np.nanmax(off):.2f} |")
     return "\n".join(lines)
 
 
@@ -145,12 +193,15 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=30.0)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variants", type=int, default=8)
+    parser.add_argument("--goal-source", default="predicted", choices=("predicted", "expert"),
+                        help="students: the goal the locomotion module gets (its own prediction or the expert's)")
     parser.add_argument("--bin", type=float, default=2.0, help="time bin of the table, s")
     args = parser.parse_args()
     torch.set_num_threads(1)
     result = route_following(args.checkpoint, args.category, args.level, args.robots, args.seconds, args.seed,
-                             args.variants)
-    print(f"{args.checkpoint} on {args.category} level {args.level} (seed {args.seed}, {args.robots} robots); "
+                             args.variants, args.goal_source)
+    print(f"{args.checkpoint} on {args.category} level {args.level} (seed {args.seed}, {args.robots} robots, "
+          f"{args.goal_source} goal); "
           "yaws in degrees, positive = to the left of the heading")
     print(summary_table(result, args.bin))
     offset = result["route_offset"][np.isfinite(result["route_offset"])]

@@ -270,6 +270,11 @@ def test_route_following_geometry_helpers_match_hand_computed_values():
     a170, am170 = np.radians(170.0), np.radians(-170.0)
     assert rf.angle_between_deg(np.array([math.cos(a170), math.sin(a170)]),
                                 np.array([math.cos(am170), math.sin(am170)])) == pytest.approx(20.0)
+    # heading 90 deg (facing +y), goal straight ahead in the yaw frame, moving along world -x + y:
+    # 45 deg to the left of the goal; too slow: undefined; wraps across +-180
+    course = rf.course_error_deg(np.array([[1.0, 0.0], [1.0, 0.0], [-1.0, 0.01]]),
+                                 np.array([[-1.0, 1.0], [0.01, 0.0], [-1.0, -0.01]]), np.array([math.pi / 2, 0.0, 0.0]))
+    assert course[0] == pytest.approx(45.0) and np.isnan(course[1]) and abs(course[2]) < 2.0
     # polyline (0,0) -> (2,0) -> (2,2); a second row with 2 vertices (its third is junk); a single point
     points = np.array([[[0, 0], [2, 0], [2, 2]], [[0, 0], [0, 4], [50, 50]], [[1, 1], [9, 9], [9, 9]]], float)
     count = np.array([3, 2, 1])
@@ -291,10 +296,29 @@ def test_route_following_of_a_standing_robot_and_of_the_committed_oracle():
     assert zero["route_offset"].max() < 0.1
     assert np.isnan(zero["pred_yaw"]).all() and np.isnan(zero["pred_error"]).all()
     table = rf.summary_table(zero, bin_s=0.2)
-    assert table.count("\n") == 3 and "| - | - |" in table
+    assert table.count("\n") == 3 and "| - | - |" in table and "course error" in table
     with pytest.raises(ValueError, match="robots >= 1"):
         rf.route_following("zero", robots=0)
 
     oracle = rf.route_following(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=6.0)
     assert np.isfinite(oracle["route_offset"]).all() and oracle["route_offset"].max() < 0.5
     assert np.nanmedian(np.abs(oracle["expert_yaw"])) < 15.0
+
+
+def test_route_following_can_give_the_student_the_expert_goal():
+    """--goal-source expert replaces the committed student's predicted goal by the expert one: it
+    then keeps closer to the route (its own prediction leads it off, RESULTS.md); the oracle has
+    no goal to replace."""
+    import route_following as rf
+
+    student = str(RECIPES.parent / "checkpoints" / "student_h1.pt")
+    own = rf.route_following(student, robots=2, seconds=4.0, variants=2)
+    given = rf.route_following(student, robots=2, seconds=4.0, variants=2, goal_source="expert")
+    assert np.isfinite(own["pred_yaw"]).all() and np.isfinite(given["pred_yaw"]).all()
+    late = slice(150, 200)  # the last second
+    assert np.nanmean(given["route_offset"][late]) < np.nanmean(own["route_offset"][late]), (
+        np.nanmean(given["route_offset"][late]), np.nanmean(own["route_offset"][late]))
+    with pytest.raises(ValueError, match="needs a student"):
+        rf.route_following("zero", robots=1, seconds=0.1, goal_source="expert")
+    with pytest.raises(ValueError, match="goal_source"):
+        rf.route_following("zero", robots=1, seconds=0.1, goal_source="map")
