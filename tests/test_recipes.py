@@ -322,3 +322,18 @@ def test_route_following_can_give_the_student_the_expert_goal():
         rf.route_following("zero", robots=1, seconds=0.1, goal_source="expert")
     with pytest.raises(ValueError, match="goal_source"):
         rf.route_following("zero", robots=1, seconds=0.1, goal_source="map")
+
+
+def test_the_committed_g1_oracle_rebuilds_its_gait_clock():
+    """checkpoints/oracle_g1.pt (G1 run 2) carries its gait clock in the meta block: the eval env
+    it gets is G1's with the clock's feedforward, and the policy acts on it."""
+    from legoh_rl.training.evaluation import EvalProtocol
+    from legoh_rl.training.policies import load_policy
+
+    protocol = EvalProtocol(categories=("randommix",), levels=(0,), robots_per_cell=2)
+    env, policy, kind = load_policy(str(RECIPES.parent / "checkpoints" / "oracle_g1.pt"), protocol, num_threads=1)
+    assert kind == "oracle" and env.cfg.robot == "g1"
+    assert env.cfg.gait_period == pytest.approx(0.8) and env.cfg.gait_feedforward == pytest.approx(1.0)
+    assert env.observation_spec["proprio"].shape[-1] == 45  # 43 + the clock's sin, cos
+    td = policy(env.reset())
+    assert td["action"].shape == (2, 12) and torch.isfinite(td["action"]).all()
