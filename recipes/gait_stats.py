@@ -12,13 +12,11 @@ shuffling gait shows a p95 foot lift of a few cm; clearing 13 cm logs needs more
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
+from probe_cli import probe_parser
 
-from legoh_rl.training.evaluation import EvalProtocol
-from legoh_rl.training.policies import load_policy
+from legoh_rl.training.policies import load_cell_policy
 
 
 def gait_stats(checkpoint: str, category: str = "randommix", level: int = 0, robots: int = 8, seconds: float = 8.0,
@@ -32,9 +30,7 @@ def gait_stats(checkpoint: str, category: str = "randommix", level: int = 0, rob
     """
     if robots < 1 or seconds <= settle_s:
         raise ValueError(f"need robots >= 1 and seconds > settle_s ({settle_s}), got {robots}, {seconds}")
-    protocol = EvalProtocol(categories=(category,), levels=(level,), robots_per_cell=robots, seed=seed)
-    env, policy, _ = load_policy(checkpoint, protocol, variants=2, seed=seed, num_threads=1)
-    base = getattr(env, "base_env", env)
+    env, policy, _, base = load_cell_policy(checkpoint, category, level, robots, seed)
     steps, settle = int(round(seconds / base.dt)), int(round(settle_s / base.dt))
     lifts, air, speed = [], [], []
     walking = np.ones(robots, bool)
@@ -60,14 +56,7 @@ def gait_stats(checkpoint: str, category: str = "randommix", level: int = 0, rob
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("checkpoint", help="a policy checkpoint, or 'zero' (hold the default pose)")
-    parser.add_argument("--category", default="randommix")
-    parser.add_argument("--level", type=int, default=0)
-    parser.add_argument("--robots", type=int, default=8)
-    parser.add_argument("--seconds", type=float, default=8.0)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args = probe_parser(__doc__, seconds=8.0).parse_args()
     torch.set_num_threads(1)
     s = gait_stats(args.checkpoint, args.category, args.level, args.robots, args.seconds, args.seed)
     print(f"{args.checkpoint} on {args.category} level {args.level}: {s['standing']} of {s['robots']} robots "

@@ -28,16 +28,14 @@ mean of the signed yaws, which shows a steady bias to one side).
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
 import torch
+from probe_cli import probe_parser
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from legoh_rl.envs.sensors import world_to_yaw_frame, yaw_from_quat
-from legoh_rl.training.evaluation import EvalProtocol
-from legoh_rl.training.policies import load_policy
+from legoh_rl.training.policies import load_cell_policy
 
 COLUMNS = ("expert_yaw", "course_error", "end_yaw", "pred_yaw", "pred_error", "route_offset")
 
@@ -105,13 +103,11 @@ def route_following(checkpoint: str, category: str = "randommix", level: int = 0
     """
     if robots < 1 or seconds <= 0:
         raise ValueError(f"need robots >= 1 and seconds > 0, got robots={robots}, seconds={seconds}")
-    protocol = EvalProtocol(categories=(category,), levels=(level,), robots_per_cell=robots, seed=seed)
     if goal_source not in ("predicted", "expert"):
         raise ValueError(f"goal_source must be 'predicted' or 'expert', got {goal_source!r}")
-    env, policy, kind = load_policy(checkpoint, protocol, variants=variants, seed=seed, num_threads=1)
+    env, policy, kind, base = load_cell_policy(checkpoint, category, level, robots, seed, variants)
     if goal_source == "expert":
         policy = with_expert_goal(policy, kind)
-    base = getattr(env, "base_env", env)
     env.set_seed(seed)
     base.assign_tiles(np.full(robots, level), np.full(robots, base.trails.categories.index(category)))
     td = env.reset()
@@ -185,13 +181,7 @@ def _yaw_pair(v: np.ndarray) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("checkpoint", help="a policy checkpoint, or 'zero' (hold the default pose)")
-    parser.add_argument("--category", default="randommix")
-    parser.add_argument("--level", type=int, default=0)
-    parser.add_argument("--robots", type=int, default=8)
-    parser.add_argument("--seconds", type=float, default=30.0)
-    parser.add_argument("--seed", type=int, default=0)
+    parser = probe_parser(__doc__, seconds=30.0)
     parser.add_argument("--variants", type=int, default=8)
     parser.add_argument("--goal-source", default="predicted", choices=("predicted", "expert"),
                         help="students: the goal the locomotion module gets (its own prediction or the expert's)")

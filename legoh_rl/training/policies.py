@@ -12,7 +12,7 @@ from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor
 from legoh_rl.training.builders import gait_kwargs, policy_meta
 from legoh_rl.training.checkpoint import check_meta, load_checkpoint
 
-__all__ = ["ZeroPolicy", "load_policy", "eval_env"]
+__all__ = ["ZeroPolicy", "load_policy", "load_cell_policy", "eval_env"]
 
 
 class ZeroPolicy(TensorDictModuleBase):
@@ -66,3 +66,14 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
 
         return load_student(state, protocol, variants, seed, num_threads, trails=trails, path=checkpoint)
     raise ValueError(f"{checkpoint}: unknown checkpoint kind {kind!r}; expected 'oracle' or 'student'")
+
+
+def load_cell_policy(checkpoint: str, category: str, level: int, robots: int, seed: int = 0, variants: int = 2):
+    """``(env, policy, kind, base)`` for ``robots`` worlds on one (category, level) cell, physics on
+    one thread: what the probe recipes (``gait_stats.py``, ``route_following.py``) roll out.
+    ``base`` is the untransformed :class:`HikingEnv` (``env`` itself for an oracle)."""
+    from legoh_rl.training.evaluation import EvalProtocol
+
+    protocol = EvalProtocol(categories=(category,), levels=(level,), robots_per_cell=robots, seed=seed)
+    env, policy, kind = load_policy(checkpoint, protocol, variants=variants, seed=seed, num_threads=1)
+    return env, policy, kind, getattr(env, "base_env", env)
