@@ -24,13 +24,19 @@
 #
 # ROBOT (default h1) is env.robot: ROBOT=g1 runs the same schedule on G1 (G1 run 2 in RESULTS.md):
 #   ROBOT=g1 FEEDFORWARD=1 STAGE3_CURRICULUM=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_g1_run2
+#
+# AMPLITUDE (default 0.25) is env.gait_amplitude, the swing reference's fold in rad. The feedforward
+# alone lifts H1's foot 5.4 cm at 0.25 and G1's 4.3 cm; G1 run 3 tries 0.45 (10.3 cm) to reach level 1
+# (G1 run 3 in RESULTS.md):
+#   ROBOT=g1 AMPLITUDE=0.45 FEEDFORWARD=1 STAGE3_CURRICULUM=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_g1_run3
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${1:-outputs/oracle_h1_clock}
 PY=${PYTHON:-python}
 ROBOT=${ROBOT:-h1}
 COMMON=(env.robot="$ROBOT" env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=[256,128,64] model.init_std=0.5
-        checkpoint.every=10 logger.backend=csv env.gait_period=0.8 env.gait_feedforward="${FEEDFORWARD:-0}")
+        checkpoint.every=10 logger.backend=csv env.gait_period=0.8 env.gait_feedforward="${FEEDFORWARD:-0}"
+        env.gait_amplitude="${AMPLITUDE:-0.25}")
 # after each stage's reward_overrides (which replaces the whole dict)
 GAIT=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.gait_joint_ref=4.0)
 

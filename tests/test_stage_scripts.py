@@ -115,3 +115,15 @@ def test_clock_stages_take_the_robot_from_ROBOT(tmp_path):
         assert value(call["overrides"], "env.gait_feedforward") == "1"
         validate_oracle_stage(call["overrides"])
     assert g1[3]["overrides"] == [f"{tmp_path}/out/stage3/last.pt", f"{tmp_path}/out/oracle_g1.pt"]
+
+
+def test_clock_stages_take_the_swing_amplitude_from_AMPLITUDE(tmp_path):
+    """AMPLITUDE=0.45 (G1 run 3) sets env.gait_amplitude in every stage; the default is 0.25 (runs 13-14)."""
+    script = ROOT / "recipes" / "oracle_h1_clock_stages.sh"
+    default = dry_run(script, tmp_path)
+    assert [value(c["overrides"], "env.gait_amplitude") for c in default[:3]] == ["0.25"] * 3
+    (tmp_path / "calls").unlink()
+    wide = dry_run(script, tmp_path, {"ROBOT": "g1", "AMPLITUDE": "0.45", "FEEDFORWARD": "1"})
+    for call in wide[:3]:
+        assert value(call["overrides"], "env.gait_amplitude") == "0.45"
+        validate_oracle_stage(call["overrides"])
