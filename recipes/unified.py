@@ -47,6 +47,7 @@ from legoh_rl.training.distill import (
     dagger_beta,
     student_pass,
 )
+from legoh_rl.training.locomotion_replay import LocomotionReplay
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.student import make_student, student_env
 
@@ -107,7 +108,12 @@ def build(cfg: DictConfig) -> dict:
     sched = AdaptiveKLScheduler(optim, cfg.ppo.desired_kl, max_lr=max(cfg.ppo.learning_rate, 1e-2))
     vae_optim = torch.optim.Adam(vae.parameters(), lr=cfg.hlm.vae_lr)
     meta = {**policy_meta(base, "student"), "perception": cfg.student.perception, "preset": cfg.student.preset}
-    p = dict(teacher=teacher, base=base, env=env, student=student, critic=critic, critic_nets=critic_nets, ppo=ppo,
+    rp = cfg.get("dagger_replay") or {}
+    replay = None
+    if int(rp.get("capacity", 0)) > 0:  # aggregated DAgger data for the locomotion module
+        replay = LocomotionReplay(student.actor, int(rp.capacity), int(rp.batch_size), int(rp.steps),
+                                  seed=int(cfg.env.seed) + 2)
+    p = dict(replay=replay, teacher=teacher, base=base, env=env, student=student, critic=critic, critic_nets=critic_nets, ppo=ppo,
              gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim, sched=sched, vae_optim=vae_optim, meta=meta,
              iteration=0, frames=0, run_id=None)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
@@ -190,6 +196,9 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
                 add(f"loss/{k[5:]}", v)
             n_mb += 1
     stats = {k: v / n_mb if not k.startswith("vae/") else v for k, v in stats.items()}
+    if p["replay"] is not None:  # extra locomotion steps on the last dagger_replay.capacity steps
+        p["replay"].extend(data)
+        stats["loss/replay_im_action"] = p["replay"].train(p["optim"], cfg.ppo.max_grad_norm)
     if rl:
         stats["train/lr"] = p["sched"].step(stats["train/kl"])
     stats["train/phase_rl"] = float(rl)

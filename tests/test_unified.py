@@ -166,3 +166,19 @@ def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
                               "robots_per_cell=1", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
                               "video=false", "logger.backend=csv"])
     assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 1
+
+
+def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, tmp_path):
+    cfg = tiny(teacher, tmp_path, "dagger_iters=5", "dagger_replay.capacity=25", "dagger_replay.batch_size=8",
+               "dagger_replay.steps=4")
+    p = unified.build(cfg)
+    assert unified.build(tiny(teacher, tmp_path))["replay"] is None  # off by default
+    for it in range(2):
+        with torch.no_grad():
+            data = p["env"].rollout(10, p["student"].policy, break_when_any_done=False)
+        stats = unified.update(p, data, iteration=it, cfg=cfg)
+        assert torch.isfinite(torch.tensor(stats["loss/replay_im_action"]))
+    assert len(p["replay"]) == 25  # 2 x 40 steps through a 25-step window
+    # the window holds the teacher's labels of the latest steps
+    assert torch.equal(p["replay"].buffer.storage[:25]["action_tea"].sort(0).values,
+                       data["action_tea"].reshape(-1, data["action_tea"].shape[-1])[-25:].sort(0).values)
