@@ -1,4 +1,5 @@
-"""Command-line arguments shared by the probe recipes (``gait_stats.py``, ``route_following.py``):
+"""Command-line arguments shared by the probe recipes (``gait_stats.py``, ``route_following.py``,
+``imitation_gap.py``):
 a checkpoint rolled out on one (category, level) cell of evaluation trails."""
 
 from __future__ import annotations

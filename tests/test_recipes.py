@@ -337,3 +337,46 @@ def test_the_committed_g1_oracle_rebuilds_its_gait_clock():
     assert env.observation_spec["proprio"].shape[-1] == 45  # 43 + the clock's sin, cos
     td = policy(env.reset())
     assert td["action"].shape == (2, 12) and torch.isfinite(td["action"]).all()
+
+
+def test_imitation_gap_table_of_a_hand_made_result():
+    import imitation_gap as ig
+
+    diff = np.zeros((50, 2, 3))
+    diff[..., 0], diff[..., 1] = 0.1, -0.2
+    diff[30:, 1] = np.nan  # robot 1's episode ended
+    table = ig.gap_table({"time": np.arange(50) * 0.02, "diff": diff, "joints": ("a_joint", "b", "c")},
+                         edges_s=(0.0, 0.5, 1.0))
+    rows = table.splitlines()
+    assert rows[0] == "| time (s) | mean abs | a | b | c |"
+    assert rows[2] == "| 0-0.5 | 0.100 | +0.10 | -0.20 | +0.00 |" and rows[3].startswith("| 0.5-1 | 0.100 |")
+
+
+def test_imitation_gap_labels_the_students_own_states_with_the_teacher():
+    """The first row is the student's action minus the teacher's label on the reset state, computed
+    here by hand from the same checkpoints; the options feed the locomotion module the expert goal
+    and the teacher's latent."""
+    import imitation_gap as ig
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from legoh_rl.training.distill import Teacher
+    from legoh_rl.training.policies import load_cell_policy
+
+    ck = RECIPES.parent / "checkpoints"
+    student, teacher = str(ck / "student_h1.pt"), str(ck / "oracle_h1.pt")
+    out = ig.imitation_gap(student, teacher, robots=2, seconds=0.3, variants=2)
+    assert out["diff"].shape == (15, 2, 10) and np.isfinite(out["diff"]).all()
+    env, policy, _, base = load_cell_policy(student, "randommix", 0, 2, 0, 2)
+    env.set_seed(0)
+    base.assign_tiles(np.zeros(2, int), np.full(2, base.trails.categories.index("randommix")))
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        td = policy(env.reset())
+        tea = Teacher(teacher, "h1")
+        by_hand = (td["action"] - tea.label(td.select(*tea.in_keys).copy())["action_tea"]).numpy()
+    np.testing.assert_allclose(out["diff"][0], by_hand, atol=1e-5)
+    both = ig.imitation_gap(student, teacher, robots=2, seconds=0.3, variants=2, goal_source="expert", latent="teacher")
+    assert np.isfinite(both["diff"]).all() and not np.allclose(both["diff"], out["diff"])
+    with pytest.raises(ValueError, match="latent must be 'student' or 'teacher', got 'z'"):
+        ig.imitation_gap(student, teacher, latent="z")
+    with pytest.raises(ValueError, match="needs a student checkpoint, got a oracle policy"):
+        ig.imitation_gap(teacher, teacher, robots=1, seconds=0.1)
