@@ -325,8 +325,8 @@ def test_route_following_can_give_the_student_the_expert_goal():
 
 
 def test_the_committed_g1_oracle_rebuilds_its_gait_clock():
-    """checkpoints/oracle_g1.pt (G1 run 2) carries its gait clock in the meta block: the eval env
-    it gets is G1's with the clock's feedforward, and the policy acts on it."""
+    """checkpoints/oracle_g1.pt (G1 run 3) carries its gait clock in the meta block: the eval env
+    it gets is G1's with the clock's feedforward at run 3's wider swing, and the policy acts on it."""
     from legoh_rl.training.evaluation import EvalProtocol
     from legoh_rl.training.policies import load_policy
 
@@ -334,6 +334,7 @@ def test_the_committed_g1_oracle_rebuilds_its_gait_clock():
     env, policy, kind = load_policy(str(RECIPES.parent / "checkpoints" / "oracle_g1.pt"), protocol, num_threads=1)
     assert kind == "oracle" and env.cfg.robot == "g1"
     assert env.cfg.gait_period == pytest.approx(0.8) and env.cfg.gait_feedforward == pytest.approx(1.0)
+    assert env.cfg.gait_amplitude == pytest.approx(0.45)
     assert env.observation_spec["proprio"].shape[-1] == 45  # 43 + the clock's sin, cos
     td = policy(env.reset())
     assert td["action"].shape == (2, 12) and torch.isfinite(td["action"]).all()
