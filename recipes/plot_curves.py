@@ -2,13 +2,15 @@
 
     python recipes/plot_curves.py outputs/oracle_h1 -o docs/img/oracle_h1_curves.png
     python recipes/plot_curves.py outputs/stage1 outputs/stage2 -o curves.png   # resumed stages
+    python recipes/plot_curves.py outputs/run_a outputs/run_b --compare --panels student   # overlaid runs
 
 Several run directories are stages of one policy, each resumed from the previous one's
 checkpoint: their rows are joined in order (a stage's rows past the next stage's first step are
 dropped, since the next stage resumed from an earlier checkpoint) and the stage starts are
 marked. ``--smooth k`` overlays a k-iteration running mean on the raw curves; ``--panels gait``
 plots the gait signals (goal-velocity tracking, air time, the gait-clock terms) instead of the
-main ones.
+main ones, ``--panels student`` the imitation losses and episode metrics of a unified run.
+``--compare`` overlays the run directories as separate runs instead, one colour each.
 """
 
 from __future__ import annotations
@@ -38,7 +40,15 @@ GAIT_PANELS = [
     ("episode/ttf", "time to fall (s)"),
     ("episode/trail_completion", "trail completion (%)"),
 ]
-PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS}
+STUDENT_PANELS = [
+    ("loss/im_action", "im_action (SmoothL1 to the teacher)"),
+    ("loss/im_goals", "im_goals"),
+    ("loss/im_latent", "im_latent"),
+    ("episode/success", "success rate (%)"),
+    ("episode/trail_completion", "trail completion (%)"),
+    ("episode/ttf", "time to fall (s)"),
+]
+PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS, "student": STUDENT_PANELS}
 
 
 def load(path: Path) -> list[dict]:
@@ -71,17 +81,26 @@ def running_mean(ys: list[float], k: int) -> list[float]:
     return out
 
 
-def plot(rows: list[dict], out: Path, title: str, stage_starts: list[float] = (), smooth: int = 1,
-         panels: list[tuple[str, str]] = PANELS) -> Path:
-    """Six panels (``panels``: (metrics key, title) pairs) of training signals against env steps."""
+def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_starts: list[float] = (),
+         smooth: int = 1, panels: list[tuple[str, str]] = PANELS) -> Path:
+    """Six panels (``panels``: (metrics key, title) pairs) of training signals against env steps.
+
+    ``rows``: one run's rows, or ``{label: rows}`` for several runs overlaid (one colour each,
+    with a legend)."""
+    runs = rows if isinstance(rows, dict) else {"": rows}
     fig, axes = plt.subplots(2, 3, figsize=(12, 6))
     for ax, (key, label) in zip(axes.ravel(), panels, strict=True):
-        pts = [(r["step"], r[key]) for r in rows if r.get(key) is not None]
-        if pts:
+        for i, (name, run) in enumerate(runs.items()):
+            pts = [(r["step"], r[key]) for r in run if r.get(key) is not None and r[key] == r[key]]
+            if not pts:
+                continue
             xs, ys = zip(*pts, strict=True)
-            ax.plot(xs, ys, lw=1, alpha=0.35 if smooth > 1 else 1.0)
+            ax.plot(xs, ys, lw=1, alpha=0.35 if smooth > 1 else 1.0, color=f"C{i}",
+                    label=None if smooth > 1 or not name else name)
             if smooth > 1:
-                ax.plot(xs, running_mean(list(ys), smooth), lw=1.5, color="C0")
+                ax.plot(xs, running_mean(list(ys), smooth), lw=1.5, color=f"C{i}", label=name or None)
+        if len(runs) > 1:
+            ax.legend(fontsize=8)
         for x in stage_starts:
             ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
         ax.set_title(label)
@@ -103,14 +122,20 @@ def main() -> None:
     parser.add_argument("--smooth", type=int, default=1, help="running-mean window, iterations (1: raw only)")
     parser.add_argument("--title", default=None)
     parser.add_argument("--panels", default="default", choices=sorted(PANEL_SETS), help="which six signals")
+    parser.add_argument("--compare", action="store_true",
+                        help="the run directories are separate runs, overlaid (not stages of one policy)")
     args = parser.parse_args()
     if args.smooth < 1:
         parser.error(f"--smooth must be >= 1, got {args.smooth}")
-    rows, starts = join_stages([load(d / "metrics.jsonl") for d in args.run_dirs])
+    if args.compare:
+        rows, starts = {d.name: load(d / "metrics.jsonl") for d in args.run_dirs}, []
+    else:
+        rows, starts = join_stages([load(d / "metrics.jsonl") for d in args.run_dirs])
     title = args.title or " -> ".join(str(d) for d in args.run_dirs)
     out = plot(rows, args.output or args.run_dirs[-1] / "curves.png", title, starts, args.smooth,
                PANEL_SETS[args.panels])
-    print(f"{len(rows)} iterations in {len(args.run_dirs)} stage(s) -> {out}")
+    what = "run(s) overlaid" if args.compare else "stage(s)"
+    print(f"{sum(map(len, rows.values())) if args.compare else len(rows)} iterations in {len(args.run_dirs)} {what} -> {out}")
 
 
 if __name__ == "__main__":

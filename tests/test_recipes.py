@@ -203,6 +203,22 @@ def test_plot_curves_joins_resumed_stages_and_smooths():
     assert plot_curves.running_mean([1.0, 3.0, 5.0, 7.0], 2) == [1.0, 2.0, 4.0, 6.0]
 
 
+def test_plot_curves_overlays_separate_runs(tmp_path, monkeypatch):
+    """--compare: {label: rows} draws each run in its own colour with a legend; NaN values are skipped."""
+    import plot_curves
+
+    figs = []
+    monkeypatch.setattr(plot_curves.plt, "close", figs.append)
+    a = [{"step": s, "loss/im_action": 0.1, "episode/success": float("nan")} for s in (10, 20)]
+    b = [{"step": s, "loss/im_action": 0.05, "episode/success": 40.0} for s in (10, 20, 30)]
+    out = plot_curves.plot({"a": a, "b": b}, tmp_path / "cmp.png", "two", panels=plot_curves.STUDENT_PANELS)
+    assert out.stat().st_size > 1000
+    ax_im, ax_sr = figs[0].axes[0], figs[0].axes[3]
+    assert ax_im.get_legend_handles_labels()[1] == ["a", "b"]
+    assert [list(line.get_ydata()) for line in ax_im.lines] == [[0.1, 0.1], [0.05, 0.05, 0.05]]
+    assert [list(line.get_ydata()) for line in ax_sr.lines] == [[40.0, 40.0, 40.0]]  # run a has no values
+
+
 def test_metrics_file_of_a_resumed_run_drops_the_rows_after_its_checkpoint(tmp_path):
     import json
 
