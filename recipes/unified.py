@@ -69,6 +69,9 @@ def validate(cfg: DictConfig) -> None:
     decay = cfg.get("dagger_decay_iters")
     if decay is not None and not 0 < decay <= cfg.dagger_iters:
         raise ValueError(f"dagger_decay_iters must lie in (0, dagger_iters={cfg.dagger_iters}], got {decay!r}")
+    capacity = (cfg.get("dagger_replay") or {}).get("capacity", 0)
+    if not int(capacity) >= 0:
+        raise ValueError(f"dagger_replay.capacity must be >= 0 (0: off), got {capacity!r}")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "

@@ -173,6 +173,10 @@ def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, t
                "dagger_replay.steps=4")
     p = unified.build(cfg)
     assert unified.build(tiny(teacher, tmp_path))["replay"] is None  # off by default
+    with pytest.raises(ValueError, match=r"dagger_replay.capacity must be >= 0 \(0: off\), got -1"):
+        unified.build(tiny(teacher, tmp_path, "dagger_replay.capacity=-1"))
+    with pytest.raises(ValueError, match="LocomotionReplay steps must be >= 1, got 0"):
+        unified.build(tiny(teacher, tmp_path, "dagger_replay.capacity=8", "dagger_replay.steps=0"))
     for it in range(2):
         with torch.no_grad():
             data = p["env"].rollout(10, p["student"].policy, break_when_any_done=False)
