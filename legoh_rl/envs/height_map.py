@@ -9,10 +9,13 @@ coordinate transform.
 
 from __future__ import annotations
 
+import ctypes
 from collections.abc import Callable
 
 import numpy as np
 import torch
+
+from legoh_rl.envs.native.build import load_library
 
 __all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "torch_height_fn"]
 
@@ -38,8 +41,11 @@ class HeightMap:
         if not resolution > 0:
             raise ValueError(f"resolution must be positive, got {resolution!r}")
         nx, ny = heights.shape
-        self.image = torch.tensor(heights, dtype=torch.float32)[None, None]
+        #: (nx, ny) float32, C-contiguous (read by the native kernels; shares memory with ``image``)
+        self.heights = np.array(heights, dtype=np.float32, order="C")
+        self.image = torch.from_numpy(self.heights)[None, None]
         self.x0, self.y0 = float(origin[0]), float(origin[1])
+        self.resolution = float(resolution)
         self.sx = 2.0 / ((nx - 1) * resolution)
         self.sy = 2.0 / ((ny - 1) * resolution)
 
@@ -61,9 +67,20 @@ class HeightMap:
         return self.sample_grid(self.to_grid(xy))
 
     def numpy(self, xy: np.ndarray) -> np.ndarray:
-        """Heights at world points given as numpy, (M, 2) -> (M,) float64."""
-        p = torch.from_numpy(np.ascontiguousarray(xy, dtype=np.float32).reshape(-1, 2))
-        return self(p).numpy().astype(np.float64)
+        """Heights at world points given as numpy, (M, 2) -> (M,) float64.
+
+        Uses the native bilinear kernel (:mod:`legoh_rl.envs.native`) when it is available (the
+        same values to float32 rounding, without torch's per-call overhead), else ``grid_sample``.
+        """
+        p = np.ascontiguousarray(xy, dtype=np.float32).reshape(-1, 2)
+        lib = load_library()
+        if lib is None:
+            return self(torch.from_numpy(p)).numpy().astype(np.float64)
+        out = np.empty(p.shape[0], dtype=np.float32)
+        f32 = ctypes.POINTER(ctypes.c_float)
+        lib.lh_heights(self.heights.ctypes.data_as(f32), self.heights.shape[0], self.heights.shape[1], self.x0,
+                       self.y0, 1.0 / self.resolution, p.ctypes.data_as(f32), p.shape[0], out.ctypes.data_as(f32))
+        return out.astype(np.float64)
 
 
 class WorldSampler:

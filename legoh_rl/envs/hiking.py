@@ -256,12 +256,9 @@ class HikingEnv(EnvBase):
             for key, rows in self._observations(state, ids).items():
                 self._obs[key][ids] = rows
             obs = self._obs
-        zeros = np.zeros(N)
-        out = self._to_td(obs, reward_terms={k: zeros for k in self.weights},
-                          episode=self._empty_episode(), info=(np.zeros(N, bool), np.zeros(N, bool)))
-        for key in ("done", "terminated", "truncated"):
-            out.set(key, torch.zeros(N, 1, dtype=torch.bool, device=self.device))
-        return out
+        zeros, no = np.zeros(N), np.zeros(N, bool)
+        return self._to_td(obs, reward_terms={k: zeros for k in self.weights}, episode=self._empty_episode(),
+                           info=(no, no), flags=(no, no, no))
 
     def _full_observations(self) -> dict:
         """Observations of every world from the current state (kept for the next partial reset)."""
@@ -327,11 +324,8 @@ class HikingEnv(EnvBase):
         obs = self._obs = self._observations(state)
         self.dq_prev[:] = state["dq"]
         self.torques_prev[:] = state["torques"]
-        out = self._to_td(obs, reward_terms=terms, episode=episode, info=(diverged, bad_action))
-        out.set("reward", torch.as_tensor(total, dtype=torch.float32, device=self.device).reshape(N, 1))
-        for key, val in (("done", done), ("terminated", terminated), ("truncated", truncated)):
-            out.set(key, torch.as_tensor(val, device=self.device).reshape(N, 1))
-        return out
+        return self._to_td(obs, reward_terms=terms, episode=episode, info=(diverged, bad_action), reward=total,
+                           flags=(done, terminated, truncated))
 
     # ------------------------------------------------------------------ episodes
     def _reset_worlds(self, ids: np.ndarray) -> None:
@@ -579,19 +573,35 @@ class HikingEnv(EnvBase):
         angle = 2.0 * np.pi * phase
         return [np.stack([np.sin(angle), np.cos(angle)], axis=1)]
 
-    def _to_td(self, obs: dict, reward_terms: dict, episode: dict, info: tuple) -> TensorDict:
+    def _to_td(self, obs: dict, reward_terms: dict, episode: dict, info: tuple, reward: np.ndarray | None = None,
+               flags: tuple | None = None) -> TensorDict:
+        """The step/reset output: observations, reward terms, episode metrics, info, and (when
+        given) the reward and the (done, terminated, truncated) flags.
+
+        Every value is a fresh tensor (the env keeps updating its buffers, e.g. depth and tick, in
+        place). The (N, 1) columns of each dtype are written into one (K, N) array first, so a step
+        makes a handful of tensors rather than one per key; each key is a contiguous row of it.
+        """
         N, dev = self.cfg.num_envs, self.device
-
-        def t(x, dtype=torch.float32):
-            # always a copy: the env keeps updating its buffers (depth, tick) in place
-            return torch.tensor(np.asarray(x), dtype=dtype, device=dev)
-
-        data = {k: t(v, torch.bool) if k == "perception_tick" else t(v) for k, v in obs.items()}
-        data["reward_terms"] = {k: t(v).reshape(N, 1) for k, v in reward_terms.items()}
-        data["episode"] = {
-            k: (t(v, torch.int64) if k in ("level", "category") else t(v)).reshape(N, 1) for k, v in episode.items()
-        }
-        data["info"] = {"diverged": t(info[0], torch.bool).reshape(N, 1), "bad_action": t(info[1], torch.bool).reshape(N, 1)}
+        float_cols = [(("reward_terms", k), v) for k, v in reward_terms.items()]
+        float_cols += [(("episode", k), v) for k, v in episode.items() if k not in ("level", "category")]
+        int_cols = [(("episode", k), episode[k]) for k in ("level", "category") if k in episode]
+        bool_cols = [(("info", "diverged"), info[0]), (("info", "bad_action"), info[1])]
+        if reward is not None:
+            float_cols.append((("reward",), reward))
+        if flags is not None:
+            bool_cols += [((k,), v) for k, v in zip(("done", "terminated", "truncated"), flags, strict=True)]
+        data: dict = {k: torch.from_numpy(np.array(v, dtype=bool if k == "perception_tick" else np.float32))
+                      for k, v in obs.items()}
+        for cols, dtype in ((float_cols, np.float32), (int_cols, np.int64), (bool_cols, bool)):
+            if not cols:
+                continue
+            block = torch.from_numpy(np.stack([np.asarray(v).reshape(N) for _, v in cols]).astype(dtype, copy=False))
+            for i, (key, _) in enumerate(cols):
+                node = data
+                for part in key[:-1]:
+                    node = node.setdefault(part, {})
+                node[key[-1]] = block[i].view(N, 1)
         return TensorDict(data, batch_size=[N], device=dev)
 
     # ------------------------------------------------------------------ evaluation protocol

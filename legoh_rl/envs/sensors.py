@@ -6,6 +6,7 @@ All functions take ``(N, ...)`` arrays and loop over no world in Python.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -13,7 +14,8 @@ import mujoco
 import numpy as np
 import torch
 
-from legoh_rl.envs.height_map import as_grid_sampler, torch_height_fn
+from legoh_rl.envs.height_map import HeightMap, as_grid_sampler, torch_height_fn
+from legoh_rl.envs.native import load_library, march_ground_native, unavailable_reason
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, TERRAIN_GEOM_GROUPS
 
@@ -21,6 +23,7 @@ __all__ = [
     "DepthCameraConfig",
     "DepthCamera",
     "march_ground",
+    "resolve_march_backend",
     "torch_height_fn",
     "scandot_offsets",
     "scandots",
@@ -29,6 +32,9 @@ __all__ = [
     "roll_pitch_from_gravity",
     "world_to_yaw_frame",
 ]
+
+
+MARCH_BACKENDS = ("auto", "native", "torch")
 
 
 @dataclass
@@ -45,6 +51,11 @@ class DepthCameraConfig:
         march_samples: coarse samples per ray of the height-map ray march (see
             :func:`march_ground`): fewer is faster, more resolves thinner features.
         march_refine: regula-falsi steps that locate the hit inside the bracketing samples.
+        backend: ray-march implementation: ``"native"`` (the C kernel of
+            :mod:`legoh_rl.envs.native`, built with the system C compiler on first use; each ray
+            stops at its first sample below the ground), ``"torch"`` (the vectorised reference,
+            :func:`march_ground`), or ``"auto"`` (native when it builds, else torch with a warning).
+            Both give the same depth to float32 rounding.
     """
 
     height: int = 64
@@ -55,8 +66,11 @@ class DepthCameraConfig:
     dropout: float = 0.0
     march_samples: int = 12
     march_refine: int = 3
+    backend: str = "auto"
 
     def __post_init__(self) -> None:
+        if self.backend not in MARCH_BACKENDS:
+            raise ValueError(f"depth backend must be one of {MARCH_BACKENDS}, got {self.backend!r}")
         if self.height < 1 or self.width < 1:
             raise ValueError(f"depth resolution must be positive, got {self.height}x{self.width}")
         if self.march_samples < 2:
@@ -65,6 +79,27 @@ class DepthCameraConfig:
             raise ValueError(f"march_refine must be >= 0, got {self.march_refine}")
         if not 0.0 <= self.near < self.far:
             raise ValueError(f"need 0 <= near < far, got near={self.near}, far={self.far}")
+
+
+def resolve_march_backend(name: str) -> str:
+    """The ray-march implementation a :class:`DepthCameraConfig` ``backend`` gives on this machine:
+    ``"native"`` or ``"torch"``.
+
+    Raises:
+        ValueError: ``name`` is not one of ``MARCH_BACKENDS``.
+        RuntimeError: ``"native"`` was asked for and the kernel cannot be built (says why).
+    """
+    if name not in MARCH_BACKENDS:
+        raise ValueError(f"depth backend must be one of {MARCH_BACKENDS}, got {name!r}")
+    if name == "torch":
+        return "torch"
+    if load_library() is not None:
+        return "native"
+    if name == "native":
+        raise RuntimeError(f"depth backend 'native' asked for, but its kernel cannot be built: {unavailable_reason()}")
+    warnings.warn(f"native depth kernel unavailable ({unavailable_reason()}); using the torch ray march",
+                  RuntimeWarning, stacklevel=2)
+    return "torch"
 
 
 class DepthCamera:
@@ -88,6 +123,8 @@ class DepthCamera:
                  obstacle_caster: ObstacleRayCaster | None = None) -> None:
         self.cfg = cfg
         self.obstacle_caster = obstacle_caster
+        #: the ray march in use, "native" or "torch" (see :func:`resolve_march_backend`)
+        self.backend = resolve_march_backend(cfg.backend)
         tan_y = math.tan(math.radians(fovy_deg) / 2.0)
         tan_x = tan_y * cfg.width / cfg.height
         # pixel centres; row 0 is the top of the image, column 0 the left
@@ -146,15 +183,14 @@ class DepthCamera:
         vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))  # (n, R, 3) world-frame rays
         t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
         # 1) march every ray against the surface map (ground + rasterised obstacle tops)
-        dist = march_ground(cam_pos, vec, t_max, surface_fn, samples=cfg.march_samples, refine=cfg.march_refine,
-                            z_max=z_max, z_min=z_min)
+        dist = self._march(cam_pos, vec, t_max, surface_fn, z_max=z_max, z_min=z_min)
         # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march. The march
         # stopped on the surface, so the ray's height there is the surface height: one lookup.
         hit = np.isfinite(dist)
         t_hit = np.where(hit, dist, 0.0)
         hit_xyz = cam_pos[:, None, :] + t_hit[..., None] * vec
-        ground = torch_height_fn(ground_fn)(torch.as_tensor(hit_xyz[..., :2].reshape(-1, 2), dtype=torch.float32))
-        on_obstacle = hit & (hit_xyz[..., 2] - ground.numpy().reshape(dist.shape) > 0.02)
+        ground = self._heights(ground_fn, hit_xyz[..., :2].reshape(-1, 2))
+        on_obstacle = hit & (hit_xyz[..., 2] - ground.reshape(dist.shape) > 0.02)
         if on_obstacle.any():
             dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn,
                                             z_max, z_min)
@@ -183,6 +219,24 @@ class DepthCamera:
         depth = self._normalised(np.where(dist < 0.0, np.inf, dist))
         return depth.reshape(-1, 1, self.cfg.height, self.cfg.width).astype(np.float32)
 
+    def _march(self, origin, dirs, t_max, height_fn, z_max=None, z_min=None, t_min=None) -> np.ndarray:
+        """:func:`march_ground` with this camera's samples, on its backend (the native kernel needs
+        a :class:`HeightMap`; other height functions take the torch march). Native runs on as many
+        threads as torch has (the env renders inside ``torch_threads``)."""
+        cfg = self.cfg
+        if self.backend == "native" and isinstance(height_fn, HeightMap):
+            return march_ground_native(height_fn, origin, dirs, t_max, samples=cfg.march_samples,
+                                       refine=cfg.march_refine, z_max=z_max, z_min=z_min, t_min=t_min,
+                                       threads=torch.get_num_threads())
+        return march_ground(origin, dirs, t_max, height_fn, samples=cfg.march_samples, refine=cfg.march_refine,
+                            z_max=z_max, z_min=z_min, t_min=t_min)
+
+    def _heights(self, height_fn, xy: np.ndarray) -> np.ndarray:
+        """Heights at world points (M, 2) -> (M,) numpy, native where the backend allows."""
+        if self.backend == "native" and isinstance(height_fn, HeightMap):
+            return height_fn.numpy(xy)
+        return torch_height_fn(height_fn)(torch.as_tensor(xy, dtype=torch.float32)).numpy()
+
     def _normalised(self, dist: np.ndarray) -> np.ndarray:
         """Distances along the rays (n, R), ``inf`` for no hit -> normalised z-depth (n, R)."""
         cfg = self.cfg
@@ -206,10 +260,9 @@ class DepthCamera:
             obstacle = self.obstacle_caster.cast(cam_pos[w], vec[w, r], t_max[w, r])
         else:
             obstacle = self._batch_ray_obstacles(batch, cam_pos, vec, ids, flagged)[w, r]
-        ground = march_ground(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
-                              samples=self.cfg.march_samples, refine=self.cfg.march_refine,
-                              z_max=None if z_max is None else z_max[w],
-                              z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
+        ground = self._march(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
+                             z_max=None if z_max is None else z_max[w],
+                             z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
         out[w, r] = np.minimum(obstacle, ground[:, 0])
         return out
 

@@ -1,0 +1,89 @@
+"""Python entry point of the native height-map ray march.
+
+Takes and returns numpy arrays and matches the torch reference
+(:func:`legoh_rl.envs.sensors.march_ground`) to float32 rounding. Needs
+:func:`~legoh_rl.envs.native.build.load_library` to succeed. (The native bilinear lookup is
+:meth:`legoh_rl.envs.height_map.HeightMap.numpy`.)
+"""
+
+from __future__ import annotations
+
+import ctypes
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from legoh_rl.envs.native.build import load_library, unavailable_reason
+
+__all__ = ["march_ground_native"]
+
+if TYPE_CHECKING:  # height_map imports this package
+    from legoh_rl.envs.height_map import HeightMap
+
+_F32 = ctypes.POINTER(ctypes.c_float)
+
+
+def _lib() -> ctypes.CDLL:
+    lib = load_library()
+    if lib is None:
+        raise RuntimeError(f"the native height-march kernel is unavailable: {unavailable_reason()}")
+    return lib
+
+
+def _f32(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a C-contiguous float32 array of ``shape`` (broadcast), or a ValueError naming it."""
+    a = np.asarray(a, dtype=np.float32)
+    try:
+        return np.ascontiguousarray(np.broadcast_to(a, shape))
+    except ValueError:
+        raise ValueError(f"{name} must have shape {shape} (or broadcast to it), got {a.shape}") from None
+
+
+def _ptr(a: np.ndarray | None):
+    return None if a is None else a.ctypes.data_as(_F32)
+
+
+def march_ground_native(
+    hm: HeightMap,
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    t_max: np.ndarray,
+    samples: int = 16,
+    refine: int = 3,
+    z_max: np.ndarray | None = None,
+    z_min: np.ndarray | None = None,
+    t_min: np.ndarray | None = None,
+    threads: int = 1,
+) -> np.ndarray:
+    """First hit of rays with a height map; the arguments and result of
+    :func:`legoh_rl.envs.sensors.march_ground` (origin (n, 3), dirs (n, R, 3), t_max, t_min (n, R),
+    z_max, z_min (n,) -> (n, R) float64, ``inf`` for no hit), computed in C on ``threads`` threads.
+    Each ray stops at its first sample below the ground.
+
+    Raises:
+        ValueError: a shape does not match ``dirs`` (named in the message).
+        RuntimeError: the kernel could not be built (the reason is in the message).
+    """
+    dirs = np.asarray(dirs)
+    if dirs.ndim != 3 or dirs.shape[2] != 3:
+        raise ValueError(f"dirs must be (n, R, 3), got shape {dirs.shape}")
+    n, r = dirs.shape[:2]
+    origin = np.asarray(origin)
+    if origin.shape != (n, 3):
+        raise ValueError(f"origin must be ({n}, 3) to match dirs {dirs.shape}, got {origin.shape}")
+    if samples < 1 or refine < 0:
+        raise ValueError(f"need samples >= 1 and refine >= 0, got samples={samples}, refine={refine}")
+    lib = _lib()
+    o = _f32(origin, (n, 3), "origin")
+    d = _f32(dirs, (n, r, 3), "dirs")
+    tm = _f32(t_max, (n, r), "t_max")
+    zx = None if z_max is None else _f32(np.asarray(z_max).reshape(-1), (n,), "z_max")
+    zn = None if z_min is None else _f32(np.asarray(z_min).reshape(-1), (n,), "z_min")
+    tn = None if t_min is None else _f32(t_min, (n, r), "t_min")
+    out = np.empty((n, r), dtype=np.float64)
+    if n * r:
+        lib.lh_march(_ptr(hm.heights), hm.heights.shape[0], hm.heights.shape[1], hm.x0, hm.y0,
+                     1.0 / hm.resolution, _ptr(o), _ptr(d), _ptr(tm), _ptr(zx), _ptr(zn), _ptr(tn), n, r,
+                     int(samples), int(refine), out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
+                     int(threads))
+    return out

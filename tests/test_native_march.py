@@ -1,0 +1,141 @@
+"""The native (C) height-map kernels agree with the torch reference, and fall back cleanly."""
+
+import numpy as np
+import pytest
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.height_map import HeightMap
+from legoh_rl.envs.native import build, load_library, march_ground_native, unavailable_reason
+from legoh_rl.envs.sensors import (
+    DepthCamera,
+    DepthCameraConfig,
+    march_ground,
+    resolve_march_backend,
+)
+from legoh_rl.envs.trail_source import trails_for
+
+needs_native = pytest.mark.skipif(load_library() is None, reason=f"native kernel unavailable: {unavailable_reason()}")
+
+
+def _hilly_map(seed=0) -> HeightMap:
+    rng = np.random.default_rng(seed)
+    x, y = np.meshgrid(np.arange(160) * 0.1, np.arange(120) * 0.1, indexing="ij")
+    h = 0.4 * np.sin(0.9 * x) * np.cos(0.7 * y) + 0.05 * rng.standard_normal(x.shape)
+    h[60:70, 40:90] += 0.8  # a box-like obstacle top
+    return HeightMap(h, origin=(-2.0, -1.0), resolution=0.1)
+
+
+def _camera_rays(n, r, seed=0):
+    rng = np.random.default_rng(seed)
+    origin = np.c_[rng.uniform(2.0, 10.0, (n, 2)), np.full(n, 1.6)]
+    d = rng.standard_normal((n, r, 3))
+    d[..., 2] = -np.abs(d[..., 2]) - 0.2
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    return origin, d, np.full((n, r), 6.0)
+
+
+@needs_native
+def test_heights_match_grid_sample(monkeypatch):
+    hm = _hilly_map()
+    rng = np.random.default_rng(1)
+    xy = np.concatenate([rng.uniform(-4.0, 16.0, (2000, 2)), [[-2.0, -1.0], [13.9, 10.9], [100.0, -50.0]]])
+    native = hm.numpy(xy)
+    monkeypatch.setenv("LEGOH_RL_NATIVE", "0")
+    reference = hm.numpy(xy)  # torch grid_sample (border-clamped outside the map)
+    np.testing.assert_allclose(native, reference, atol=2e-5)  # float32 coordinates
+    # a hand-computed point: the corner cell's bilinear blend
+    assert native[-3] == pytest.approx(float(hm.heights[0, 0]), abs=1e-7)
+    monkeypatch.delenv("LEGOH_RL_NATIVE")
+    assert np.isnan(hm.numpy(np.array([[np.nan, 1.0]])))[0]
+
+
+@needs_native
+@pytest.mark.parametrize("bounds", ["none", "z", "t_min"])
+def test_march_matches_torch(bounds):
+    hm = _hilly_map()
+    origin, dirs, t_max = _camera_rays(6, 2048)
+    kw = {}
+    if bounds == "z":
+        kw = dict(z_max=np.full(6, hm.heights.max()), z_min=np.full(6, hm.heights.min()))
+    elif bounds == "t_min":
+        kw = dict(t_min=np.random.default_rng(2).uniform(0.0, 2.0, t_max.shape))
+    ref = march_ground(origin, dirs, t_max, hm, samples=12, refine=3, **kw)
+    for threads in (1, 3):
+        got = march_ground_native(hm, origin, dirs, t_max, samples=12, refine=3, threads=threads, **kw)
+        assert got.shape == ref.shape and got.dtype == np.float64
+        np.testing.assert_array_equal(np.isfinite(got), np.isfinite(ref))
+        hit = np.isfinite(ref)
+        assert 0.3 < hit.mean() < 1.0  # some rays leave the map's range, most hit
+        err = np.abs(got[hit] - ref[hit])
+        assert np.mean(err < 1e-4) > 0.999 and err.max() < 0.05  # float32 rounding only
+
+
+@needs_native
+def test_march_hits_a_flat_floor_exactly():
+    hm = HeightMap(np.full((50, 50), 0.25), origin=(0.0, 0.0), resolution=0.2)
+    origin = np.array([[5.0, 5.0, 1.25]])
+    dirs = np.array([[[0.6, 0.0, -0.8], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]]])
+    got = march_ground_native(hm, origin, dirs, np.full((1, 3), 4.0), samples=4, refine=2)
+    # 1 m above the floor: 1 / 0.8 along the slanted ray, 1 straight down, no hit level
+    np.testing.assert_allclose(got[0, :2], [1.25, 1.0], atol=1e-5)
+    assert np.isinf(got[0, 2])
+
+
+@needs_native
+def test_march_names_bad_shapes():
+    hm = _hilly_map()
+    origin, dirs, t_max = _camera_rays(2, 8)
+    with pytest.raises(ValueError, match=r"origin must be \(2, 3\)"):
+        march_ground_native(hm, origin[:1], dirs, t_max)
+    with pytest.raises(ValueError, match="t_max must have shape"):
+        march_ground_native(hm, origin, dirs, t_max[:, :3])
+    with pytest.raises(ValueError, match="dirs must be"):
+        march_ground_native(hm, origin, dirs[..., :2], t_max)
+
+
+@needs_native
+def test_native_depth_matches_torch_depth_with_obstacles():
+    trails = trails_for(("forest",), variants=1, seed=1)
+    envs = [HikingEnv(HikingEnvConfig(robot="h1", num_envs=3, mode="student", categories=("forest",), levels=(2,),
+                                      num_threads=1, depth_camera=DepthCameraConfig(backend=b)), trails=trails)
+            for b in ("native", "torch")]
+    assert [e.camera.backend for e in envs] == ["native", "torch"]
+    images = []
+    for env in envs:
+        env.reset()
+        w = env.worlds
+        w.qpos[:, 0] += np.array([1.0, 3.0, 5.0])
+        w.batch.forward()
+        ids, cam = np.arange(3), env.built.camera_id
+        pos, mat = w.cam_xpos[ids, cam], w.cam_xmat[ids, cam].reshape(-1, 3, 3)
+        images.append(env.camera.render(w.batch, pos, mat, ids, trails.height_at_t, trails.ground_height_at_t,
+                                        z_max=trails.max_height_near(pos[:, :2]),
+                                        z_min=trails.min_height_near(pos[:, :2])))
+    err_m = np.abs(images[0] - images[1]) * (envs[0].cfg.depth_camera.far - envs[0].cfg.depth_camera.near)
+    assert np.mean(err_m < 1e-3) > 0.999
+
+
+def test_backend_choice_and_fallback(monkeypatch):
+    with pytest.raises(ValueError, match="'cuda'"):
+        DepthCameraConfig(backend="cuda")
+    with pytest.raises(ValueError, match="'gpu'"):
+        resolve_march_backend("gpu")
+    assert resolve_march_backend("torch") == "torch"
+    monkeypatch.setenv("LEGOH_RL_NATIVE", "0")
+    assert load_library() is None and "LEGOH_RL_NATIVE=0" in unavailable_reason()
+    with pytest.raises(RuntimeError, match="LEGOH_RL_NATIVE=0"):
+        resolve_march_backend("native")
+    with pytest.warns(RuntimeWarning, match="using the torch ray march"):
+        cam = DepthCamera(DepthCameraConfig(backend="auto"), fovy_deg=60.0)
+    assert cam.backend == "torch"
+
+
+def test_failed_build_is_reported(tmp_path, monkeypatch):
+    monkeypatch.setenv("LEGOH_RL_CACHE", str(tmp_path))
+    with pytest.raises(RuntimeError, match="compiling height_march.c failed"):
+        build.build_library(cc="false")  # a "compiler" that always fails
+    assert list(tmp_path.iterdir()) == []  # no half-written library left behind
+    monkeypatch.setattr(build.shutil, "which", lambda name: None)
+    monkeypatch.delenv("CC", raising=False)
+    with pytest.raises(RuntimeError, match="no C compiler found"):
+        build.build_library()
