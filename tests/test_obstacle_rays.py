@@ -5,7 +5,26 @@ import numpy as np
 import pytest
 import trimesh
 
+from legoh_rl.envs.native import load_library
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
+
+# every cast test runs on the numpy path and on the native kernel (where it builds), 1 and 2 threads
+IMPLS = [("numpy", 1)] + ([("native", 1), ("native", 2)] if load_library() is not None else [])
+
+
+@pytest.fixture(params=IMPLS, ids=[f"{i}-{t}" for i, t in IMPLS])
+def impl(request):
+    return request.param
+
+
+def _caster(model, impl, **kw) -> ObstacleRayCaster:
+    caster = ObstacleRayCaster.from_model(model, **kw)
+    caster.native = impl[0] == "native"
+    threads = impl[1]
+    plain_cast = caster.cast
+    caster.cast = lambda o, d, t: plain_cast(o, d, t, threads=threads)
+    return caster
+
 
 GROUPS = np.array([0, 1, 0, 0, 0, 0], dtype=np.uint8)
 
@@ -78,11 +97,11 @@ def test_from_model_reads_group_one():
     assert names == ["box", "post", "log", "rock", "tet"]  # no floor (group 0), no invisible box
 
 
-def test_cast_matches_mj_ray():
+def test_cast_matches_mj_ray(impl):
     m = _model()
     data = mujoco.MjData(m)
     mujoco.mj_forward(m, data)
-    caster = ObstacleRayCaster.from_model(m)
+    caster = _caster(m, impl)
     o, d = _random_rays(caster, 4000, seed=1)
     ref = _mj_ray(m, data, o, d)
     assert 0.3 < np.mean(ref >= 0.0) < 0.9  # plenty of hits and misses
@@ -120,11 +139,11 @@ def test_candidates_are_exactly_the_bounding_sphere_hits():
         assert set(zip(order[r], g, strict=True)) == want
 
 
-def test_non_unit_directions_measure_in_units_of_the_direction():
+def test_non_unit_directions_measure_in_units_of_the_direction(impl):
     m = _model()
     data = mujoco.MjData(m)
     mujoco.mj_forward(m, data)
-    caster = ObstacleRayCaster.from_model(m)
+    caster = _caster(m, impl)
     o, d = _random_rays(caster, 500, seed=3)
     d = d * np.random.default_rng(4).uniform(0.2, 3.0, size=(len(d), 1))
     ref = _mj_ray(m, data, o, d)
@@ -132,11 +151,11 @@ def test_non_unit_directions_measure_in_units_of_the_direction():
     _assert_same_hits(got, np.where(ref >= 0.0, ref, np.inf))
 
 
-def test_origin_inside_reports_the_exit_like_mj_ray():
+def test_origin_inside_reports_the_exit_like_mj_ray(impl):
     m = _model()
     data = mujoco.MjData(m)
     mujoco.mj_forward(m, data)
-    caster = ObstacleRayCaster.from_model(m)
+    caster = _caster(m, impl)
     rng = np.random.default_rng(5)
     # points near each geom's frame origin (inside every one of these geoms), random directions
     o = np.repeat(caster.pos, 50, axis=0) + rng.normal(scale=0.02, size=(50 * caster.num_geoms, 3))
@@ -183,8 +202,8 @@ def test_non_convex_mesh_raises():
         ObstacleRayCaster.from_model(m)
 
 
-def test_shapes_and_empty():
-    caster = ObstacleRayCaster.from_model(_model())
+def test_shapes_and_empty(impl):
+    caster = _caster(_model(), impl)
     out = caster.cast(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))
     assert out.shape == (0,) and out.dtype == np.float64
     # far from everything, pointing away: all misses
@@ -192,6 +211,6 @@ def test_shapes_and_empty():
     out = caster.cast(o, np.tile([0.0, 0.0, 1.0], (7, 1)), np.full(7, 10.0))
     assert out.shape == (7,) and np.isinf(out).all()
     # a group with no geoms: everything misses
-    empty = ObstacleRayCaster.from_model(_model(), group=4)
+    empty = _caster(_model(), impl, group=4)
     assert empty.num_geoms == 0
     assert np.isinf(empty.cast(o, -o, np.full(7, 10.0))).all()

@@ -11,8 +11,12 @@ tests every obstacle.
 
 from __future__ import annotations
 
+import ctypes
+
 import mujoco
 import numpy as np
+
+from legoh_rl.envs.native.build import load_library
 
 __all__ = ["ObstacleRayCaster"]
 
@@ -79,6 +83,7 @@ class ObstacleRayCaster:
             if int(t) == _MESH and mesh_planes[i] is None:
                 raise ValueError(f"geom {self.geom_ids[i]}: a mesh needs its face planes")
         self.block = _BLOCK
+        self._pos_c, self._mat_c, self._size_c = (np.ascontiguousarray(a) for a in (self.pos, self.mat, self.size))
         self._size_t = np.ascontiguousarray(self.size.T)  # (3, G)
         # bounding spheres, padded a little so that rounding never culls a true hit
         self._r2 = (self.rbound * (1.0 + 1e-9) + 1e-9) ** 2
@@ -92,6 +97,16 @@ class ObstacleRayCaster:
         self._planes[..., 3] = 1.0
         for k, p in enumerate(planes):
             self._planes[k, : p.shape[0]] = p
+        #: use the native kernel (legoh_rl.envs.native) in :meth:`cast` when it is available
+        self.native = True
+        # the native kernel's flat layout: kind codes, and every mesh's planes in one (F, 4) array
+        self._kind = np.select([self.geom_type == _BOX, self.geom_type == _CYLINDER], [0, 1], 2).astype(np.int32)
+        counts = np.array([0 if p is None else np.asarray(p).reshape(-1, 4).shape[0] for p in mesh_planes], np.int64)
+        self._plane_start = (np.cumsum(counts) - counts).astype(np.int64)
+        self._plane_count = counts
+        self._flat_planes = np.ascontiguousarray(
+            np.concatenate([np.asarray(p, np.float64).reshape(-1, 4) for p in mesh_planes if p is not None]
+                           or [np.zeros((1, 4))]))
 
     @property
     def num_geoms(self) -> int:
@@ -149,13 +164,17 @@ class ObstacleRayCaster:
         return cls(sel, types, data.geom_xpos[sel].copy(), data.geom_xmat[sel].reshape(-1, 3, 3).copy(),
                    size, rbound, planes)
 
-    def cast(self, origins: np.ndarray, dirs: np.ndarray, t_max: np.ndarray) -> np.ndarray:
+    def cast(self, origins: np.ndarray, dirs: np.ndarray, t_max: np.ndarray, threads: int = 1) -> np.ndarray:
         """Distance along each ray to the first geom surface in ``[0, t_max]``.
+
+        With the native kernel (:mod:`legoh_rl.envs.native`, when it builds and :attr:`native` is
+        True) the same tests run in C on ``threads`` threads; else in numpy (one thread).
 
         Args:
             origins: (M, 3) ray origins.
             dirs: (M, 3) ray directions (distances are in units of their length, as ``mj_ray``).
             t_max: (M,) longest distance to look along each ray.
+            threads: threads for the native kernel.
 
         Returns:
             (M,) float64 distances, ``inf`` where a ray meets no geom within ``t_max``.
@@ -169,6 +188,9 @@ class ObstacleRayCaster:
         out = np.full(M, np.inf)
         if M == 0 or self.num_geoms == 0:
             return out
+        lib = load_library() if self.native else None
+        if lib is not None:
+            return self._cast_native(lib, o, d, tm, out, threads)
         rays, geoms = self.candidates(o, d, tm)
         if rays.size == 0:
             return out
@@ -186,6 +208,21 @@ class ObstacleRayCaster:
                     t[k] = fn(np.take(lo, k, axis=1), np.take(ld, k, axis=1), geoms[k])
         ok = t <= tm[rays]
         np.minimum.at(out, rays[ok], t[ok])
+        return out
+
+    def _cast_native(self, lib, o, d, tm, out, threads: int) -> np.ndarray:
+        o, d, tm = (np.ascontiguousarray(a, dtype=np.float64) for a in (o, d, tm))
+        f64, i64 = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
+
+        def ptr(a, t=f64):
+            return a.ctypes.data_as(t)
+
+        rc = lib.lh_obstacle_cast(self.num_geoms, self._kind.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
+                                  ptr(self._pos_c), ptr(self._mat_c), ptr(self._size_c), ptr(self._r2),
+                                  ptr(self._plane_start, i64), ptr(self._plane_count, i64), ptr(self._flat_planes),
+                                  o.shape[0], ptr(o), ptr(d), ptr(tm), ptr(out), int(threads))
+        if rc != 0:
+            raise MemoryError("native obstacle caster could not allocate its work memory")
         return out
 
     def candidates(self, origins: np.ndarray, dirs: np.ndarray, t_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

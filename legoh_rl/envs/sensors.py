@@ -15,7 +15,13 @@ import numpy as np
 import torch
 
 from legoh_rl.envs.height_map import HeightMap, as_grid_sampler, torch_height_fn
-from legoh_rl.envs.native import load_library, march_ground_native, unavailable_reason
+from legoh_rl.envs.native import (
+    camera_native,
+    load_library,
+    march_ground_native,
+    same_grid,
+    unavailable_reason,
+)
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, TERRAIN_GEOM_GROUPS
 
@@ -35,6 +41,8 @@ __all__ = [
 
 
 MARCH_BACKENDS = ("auto", "native", "torch")
+#: a surface hit this far (m) above the bare ground lies on an obstacle (resolved exactly)
+OBSTACLE_MARGIN = 0.02
 
 
 @dataclass
@@ -180,19 +188,27 @@ class DepthCamera:
         n = ids.size
         if n == 0:
             return np.zeros((0, 1, cfg.height, cfg.width), dtype=np.float32)
-        vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))  # (n, R, 3) world-frame rays
-        t_max = np.broadcast_to(cfg.far / self._axis_cos, vec.shape[:2])  # z-depth reaches far
-        # 1) march every ray against the surface map (ground + rasterised obstacle tops)
-        dist = self._march(cam_pos, vec, t_max, surface_fn, z_max=z_max, z_min=z_min)
-        # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march. The march
-        # stopped on the surface, so the ray's height there is the surface height: one lookup.
-        hit = np.isfinite(dist)
-        t_hit = np.where(hit, dist, 0.0)
-        hit_xyz = cam_pos[:, None, :] + t_hit[..., None] * vec
-        ground = self._heights(ground_fn, hit_xyz[..., :2].reshape(-1, 2))
-        on_obstacle = hit & (hit_xyz[..., 2] - ground.reshape(dist.shape) > 0.02)
+        t_ray = cfg.far / self._axis_cos  # (R,) the distance along each pixel ray where z-depth reaches far
+        vec = None  # (n, R, 3) world-frame rays, only where a path needs them all
+        if self._fused(surface_fn, ground_fn):
+            # 1+2 in one native call: rotate the pixel rays, march the surface map, flag obstacle hits
+            dist, on_obstacle = camera_native(surface_fn, ground_fn, cam_pos, cam_mat, self._dirs_cam, t_ray,
+                                              samples=cfg.march_samples, refine=cfg.march_refine, z_max=z_max,
+                                              z_min=z_min, obstacle_margin=OBSTACLE_MARGIN,
+                                              threads=torch.get_num_threads())
+        else:
+            vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))
+            # 1) march every ray against the surface map (ground + rasterised obstacle tops)
+            dist = self._march(cam_pos, vec, np.broadcast_to(t_ray, vec.shape[:2]), surface_fn, z_max=z_max,
+                               z_min=z_min)
+            # 2) rays whose hit lies on an obstacle: exact obstacle ray + bare-ground march. The
+            # march stopped on the surface, so the ray's height there is the surface height.
+            hit = np.isfinite(dist)
+            hit_xyz = cam_pos[:, None, :] + np.where(hit, dist, 0.0)[..., None] * vec
+            ground = self._heights(ground_fn, hit_xyz[..., :2].reshape(-1, 2))
+            on_obstacle = hit & (hit_xyz[..., 2] - ground.reshape(dist.shape) > OBSTACLE_MARGIN)
         if on_obstacle.any():
-            dist = self._exact_on_obstacles(batch, cam_pos, vec, t_max, ids, on_obstacle, dist, ground_fn,
+            dist = self._exact_on_obstacles(batch, cam_pos, cam_mat, vec, t_ray, ids, on_obstacle, dist, ground_fn,
                                             z_max, z_min)
         depth = self._normalised(dist)
         if cfg.noise_std > 0.0 or cfg.dropout > 0.0:
@@ -219,6 +235,11 @@ class DepthCamera:
         depth = self._normalised(np.where(dist < 0.0, np.inf, dist))
         return depth.reshape(-1, 1, self.cfg.height, self.cfg.width).astype(np.float32)
 
+    def _fused(self, surface_fn, ground_fn) -> bool:
+        """Whether :meth:`render` can take the one-call native path (:func:`camera_native`)."""
+        return (self.backend == "native" and isinstance(surface_fn, HeightMap) and isinstance(ground_fn, HeightMap)
+                and same_grid(surface_fn, ground_fn))
+
     def _march(self, origin, dirs, t_max, height_fn, z_max=None, z_min=None, t_min=None) -> np.ndarray:
         """:func:`march_ground` with this camera's samples, on its backend (the native kernel needs
         a :class:`HeightMap`; other height functions take the torch march). Native runs on as many
@@ -243,7 +264,7 @@ class DepthCamera:
         z = np.where(np.isfinite(dist), dist * self._axis_cos[None, :], cfg.far)
         return (np.clip(z, cfg.near, cfg.far) - cfg.near) / (cfg.far - cfg.near)
 
-    def _exact_on_obstacles(self, batch, cam_pos, vec, t_max, ids, flagged, dist, ground_fn, z_max=None,
+    def _exact_on_obstacles(self, batch, cam_pos, cam_mat, vec, t_ray, ids, flagged, dist, ground_fn, z_max=None,
                             z_min=None) -> np.ndarray:
         """Exact distances for the ``flagged`` (n, R) rays.
 
@@ -252,15 +273,20 @@ class DepthCamera:
         buckets; each bucket is one padded call (at most ~13 calls, never one per world), so a
         world that faces a forest does not make every other world cast thousands of rays. The
         bare-ground march: one call over all flagged rays, each starting where it met the surface
-        (the bare ground lies at or below the surface).
+        (the bare ground lies at or below the surface). ``vec`` (n, R, 3) are the world-frame
+        rays, or None: then the flagged ones are rotated here from ``cam_mat`` (n, 3, 3).
         """
-        out = dist.copy()
+        out = dist  # a fresh array of render's, updated in place
         w, r = np.nonzero(flagged)
+        vec_f = vec[w, r] if vec is not None else np.matmul(cam_mat[w], self._dirs_cam[r][:, :, None])[..., 0]
+        t_max = t_ray[r]
         if self.obstacle_caster is not None:
-            obstacle = self.obstacle_caster.cast(cam_pos[w], vec[w, r], t_max[w, r])
+            obstacle = self.obstacle_caster.cast(cam_pos[w], vec_f, t_max, threads=torch.get_num_threads())
         else:
+            if vec is None:
+                vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))
             obstacle = self._batch_ray_obstacles(batch, cam_pos, vec, ids, flagged)[w, r]
-        ground = self._march(cam_pos[w], vec[w, r][:, None, :], t_max[w, r][:, None], ground_fn,
+        ground = self._march(cam_pos[w], vec_f[:, None, :], t_max[:, None], ground_fn,
                              z_max=None if z_max is None else z_max[w],
                              z_min=None if z_min is None else z_min[w], t_min=dist[w, r][:, None])
         out[w, r] = np.minimum(obstacle, ground[:, 0])

@@ -1,6 +1,7 @@
-"""Build and load the native height-march kernel (``height_march.c``) with the system C compiler.
+"""Build and load the native kernels (``height_march.c``: the depth camera's ray march and bilinear
+lookups; ``obstacle_cast.c``: exact rays on obstacle geoms) with the system C compiler.
 
-The kernel is compiled once per source version and machine into a cache folder
+The library is compiled once per source version and machine into a cache folder
 (``$LEGOH_RL_CACHE``, else ``$XDG_CACHE_HOME/legoh_rl``, else ``~/.cache/legoh_rl``) and loaded with
 :mod:`ctypes`; no build step at install time and no package beyond the standard library. Where no
 compiler is found or the build fails, or ``LEGOH_RL_NATIVE=0`` is set, :func:`load_library` returns
@@ -20,10 +21,10 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
-__all__ = ["SOURCE", "cache_dir", "compiler", "library_path", "build_library", "load_library",
+__all__ = ["SOURCES", "cache_dir", "compiler", "library_path", "build_library", "load_library",
            "unavailable_reason"]
 
-SOURCE = Path(__file__).with_name("height_march.c")
+SOURCES = tuple(Path(__file__).with_name(name) for name in ("height_march.c", "obstacle_cast.c"))
 FLAGS = ("-O3", "-fPIC", "-shared", "-pthread", "-std=c99")
 
 _lib: ctypes.CDLL | None = None
@@ -52,10 +53,11 @@ def library_path(cc: str) -> Path:
     """Where the kernel built by ``cc`` from the current source is cached (the name hashes the
     source, the flags, the compiler and the platform, so an edit or another machine rebuilds)."""
     key = hashlib.sha256()
-    key.update(SOURCE.read_bytes())
+    for src in SOURCES:
+        key.update(src.read_bytes())
     key.update(" ".join((cc, *FLAGS, platform.machine(), sys.platform)).encode())
     suffix = ".dll" if sys.platform == "win32" else ".so"
-    return cache_dir() / f"height_march-{key.hexdigest()[:16]}{suffix}"
+    return cache_dir() / f"legoh_native-{key.hexdigest()[:16]}{suffix}"
 
 
 def build_library(cc: str | None = None) -> Path:
@@ -77,10 +79,10 @@ def build_library(cc: str | None = None) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=out.stem, suffix=out.suffix, dir=out.parent)
     os.close(fd)
     try:
-        cmd = [cc, *FLAGS, str(SOURCE), "-o", tmp, "-lm"]
+        cmd = [cc, *FLAGS, *map(str, SOURCES), "-o", tmp, "-lm"]
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         if res.returncode != 0:
-            raise RuntimeError(f"compiling {SOURCE.name} failed ({' '.join(cmd)}):\n{res.stderr.strip()}")
+            raise RuntimeError(f"compiling {', '.join(src.name for src in SOURCES)} failed ({' '.join(cmd)}):\n{res.stderr.strip()}")
         os.replace(tmp, out)
     finally:
         if os.path.exists(tmp):
@@ -95,6 +97,13 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.lh_march.restype = c_int
     lib.lh_march.argtypes = [f32, i64, i64, flt, flt, flt, f32, f32, f32, f32, f32, f32, i64, i64,
                              c_int, c_int, f64, c_int]
+    u8 = ctypes.POINTER(ctypes.c_uint8)
+    lib.lh_camera.restype = c_int
+    lib.lh_camera.argtypes = [f32, f32, i64, i64, flt, flt, flt, f32, f32, f32, f32, f32, f32, i64, i64,
+                              c_int, c_int, flt, f64, u8, c_int]
+    i32, i64p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_int64)
+    lib.lh_obstacle_cast.restype = c_int
+    lib.lh_obstacle_cast.argtypes = [i64, i32, f64, f64, f64, f64, i64p, i64p, f64, i64, f64, f64, f64, f64, c_int]
     lib.lh_heights.restype = None
     lib.lh_heights.argtypes = [f32, i64, i64, flt, flt, flt, f32, i64, f32]
 

@@ -8,13 +8,17 @@
  *
  * Heights h[i * ny + j] lie at world (x0 + i res, y0 + j res), bilinear between, clamped at the
  * border (torch.grid_sample with align_corners=True, padding_mode="border"). All arithmetic is
- * float32, as in the torch reference. Built by legoh_rl/envs/native_march.py with the system C
+ * float32, as in the torch reference. Built by legoh_rl/envs/native/build.py with the system C
  * compiler and loaded through ctypes.
  */
 #include <math.h>
 #include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
+
+#define MAX_THREADS 64
+#define MAX_SAMPLES 1024
+#define BLOCK 512 /* rays per work block; threads take blocks in turn, which balances the load */
 
 typedef struct {
     const float *h;
@@ -38,19 +42,9 @@ static inline float bilinear(const hmap_t *m, float ix, float iy) {
     return a + (b - a) * fx;
 }
 
-typedef struct {
-    hmap_t map;
-    const float *origin;  /* (n, 3) */
-    const float *dirs;    /* (n, R, 3) unit */
-    const float *t_max;   /* (n, R) */
-    const float *z_max;   /* (n,) or NULL */
-    const float *z_min;   /* (n,) or NULL */
-    const float *t_min;   /* (n, R) or NULL */
-    int64_t rays_per_world;
-    int samples, refine;
-    double *out;          /* (n, R) */
-    int64_t begin, end;   /* flat ray range of this job */
-} march_job_t;
+static inline float height_at(const hmap_t *m, float x, float y) {
+    return bilinear(m, (x - m->x0) * m->inv_res, (y - m->y0) * m->inv_res);
+}
 
 static inline float interp(float t_lo, float t_hi, float f_lo, float f_hi) {
     float denom = f_lo - f_hi;
@@ -60,132 +54,212 @@ static inline float interp(float t_lo, float t_hi, float f_lo, float f_hi) {
     return t_lo + (t_hi - t_lo) * w;
 }
 
-static void march_range(const march_job_t *J) {
-    const hmap_t *m = &J->map;
-    float frac[J->samples + 1];  /* s / samples, rounded as torch's arange(1, S + 1) / S */
-    for (int s = 0; s <= J->samples; ++s) frac[s] = (float)s / (float)J->samples;
-    int64_t w = J->begin / J->rays_per_world, next_world = (w + 1) * J->rays_per_world;
-    for (int64_t k = J->begin; k < J->end; ++k) {
-        if (k == next_world) {
-            ++w;
-            next_world += J->rays_per_world;
+/* Distance along the unit ray o + t d to its first crossing of the height map, INFINITY if it
+ * stays above. z_max / z_min / t_min: the optional bracket bounds (NAN = none), as in
+ * march_ground. frac[s] = s / samples. */
+static inline float march_ray(const hmap_t *m, const float *o, const float *d, float tm, float z_max,
+                              float z_min, float t_min, int samples, int refine, const float *frac) {
+    const float oz = o[2], dz = d[2];
+    const float gx = (o[0] - m->x0) * m->inv_res, gy = (o[1] - m->y0) * m->inv_res;
+    const float dgx = d[0] * m->inv_res, dgy = d[1] * m->inv_res;
+    const int down = dz < 0.0f;
+    float nd = -dz;
+    if (!(nd > 1e-6f)) nd = 1e-6f;
+    const float inv_down = 1.0f / nd;
+    float t0 = 0.0f;
+    if (z_max == z_max) {
+        const float above = oz - z_max;
+        if (down) t0 = fmaxf(above * inv_down, 0.0f);
+        else if (above > 0.0f) t0 = tm;
+        t0 = fminf(t0, tm);
+    }
+    if (t_min == t_min) t0 = fminf(fmaxf(t0, t_min), tm);
+    if (z_min == z_min) {
+        const float depth = oz - z_min + 1e-3f;
+        if (down) tm = fminf(tm, fmaxf(depth, 0.0f) * inv_down);
+        tm = fmaxf(tm, t0);
+    }
+    const float span = tm - t0;
+    float t_lo = t0, f_lo = 0.0f, t_hi = 0.0f, f_hi = 0.0f;
+    int hit = 0, first = 1;
+    for (int s = 1; s <= samples; ++s) {
+        const float t = t0 + span * frac[s];
+        const float f = oz + t * dz - bilinear(m, gx + t * dgx, gy + t * dgy);
+        if (f <= 0.0f) {
+            t_hi = t;
+            f_hi = f;
+            hit = 1;
+            break;
         }
-        const float *o = J->origin + 3 * w, *d = J->dirs + 3 * k;
-        const float oz = o[2], dz = d[2];
-        const float gx = (o[0] - m->x0) * m->inv_res, gy = (o[1] - m->y0) * m->inv_res;
-        const float dgx = d[0] * m->inv_res, dgy = d[1] * m->inv_res;
-        const int down = dz < 0.0f;
-        float nd = -dz;
-        if (!(nd > 1e-6f)) nd = 1e-6f;
-        const float inv_down = 1.0f / nd;
-        float tm = J->t_max[k], t0 = 0.0f;
-        if (J->z_max) {
-            const float above = oz - J->z_max[w];
-            if (down) t0 = fmaxf(above * inv_down, 0.0f);
-            else if (above > 0.0f) t0 = tm;
-            t0 = fminf(t0, tm);
-        }
-        if (J->t_min) t0 = fminf(fmaxf(t0, J->t_min[k]), tm);
-        if (J->z_min) {
-            const float depth = oz - J->z_min[w] + 1e-3f;
-            if (down) tm = fminf(tm, fmaxf(depth, 0.0f) * inv_down);
-            tm = fmaxf(tm, t0);
-        }
-        const float span = tm - t0;
-        float t_lo = t0, f_lo = 0.0f, t_hi = 0.0f, f_hi = 0.0f;
-        int hit = 0, first = 1;
-        for (int s = 1; s <= J->samples; ++s) {
-            const float t = t0 + span * frac[s];
-            const float f = oz + t * dz - bilinear(m, gx + t * dgx, gy + t * dgy);
-            if (f <= 0.0f) {
-                t_hi = t;
-                f_hi = f;
-                hit = 1;
-                break;
-            }
+        t_lo = t;
+        f_lo = f;
+        first = 0;
+    }
+    if (!hit) return INFINITY;
+    if (first) f_lo = oz + t0 * dz - bilinear(m, gx + t0 * dgx, gy + t0 * dgy);
+    for (int r = 0; r < refine; ++r) {
+        const float t = interp(t_lo, t_hi, f_lo, f_hi);
+        const float f = oz + t * dz - bilinear(m, gx + t * dgx, gy + t * dgy);
+        if (f > 0.0f) {
             t_lo = t;
             f_lo = f;
-            first = 0;
+        } else {
+            t_hi = t;
+            f_hi = f;
         }
-        if (!hit) {
-            J->out[k] = INFINITY;
-            continue;
-        }
-        if (first) f_lo = oz + t0 * dz - bilinear(m, gx + t0 * dgx, gy + t0 * dgy);
-        for (int r = 0; r < J->refine; ++r) {
-            const float t = interp(t_lo, t_hi, f_lo, f_hi);
-            const float f = oz + t * dz - bilinear(m, gx + t * dgx, gy + t * dgy);
-            if (f > 0.0f) {
-                t_lo = t;
-                f_lo = f;
-            } else {
-                t_hi = t;
-                f_hi = f;
-            }
-        }
-        J->out[k] = (double)interp(t_lo, t_hi, f_lo, f_hi);
     }
+    return interp(t_lo, t_hi, f_lo, f_hi);
 }
 
-#define BLOCK 512 /* rays per work block; threads take blocks in turn, which balances the load */
+/* ---------------------------------------------------------------- threads over blocks of rays */
+
+typedef void (*range_fn)(const void *ctx, int64_t begin, int64_t end);
 
 typedef struct {
-    march_job_t job;
-    int64_t n_rays;
+    range_fn fn;
+    const void *ctx;
+    int64_t n;
     int index, threads;
 } worker_t;
 
-static void *march_worker(void *arg) {
+static void *run_worker(void *arg) {
     const worker_t *W = (const worker_t *)arg;
-    march_job_t J = W->job;
-    for (int64_t b = (int64_t)W->index * BLOCK; b < W->n_rays; b += (int64_t)W->threads * BLOCK) {
-        J.begin = b;
-        J.end = b + BLOCK < W->n_rays ? b + BLOCK : W->n_rays;
-        march_range(&J);
-    }
+    for (int64_t b = (int64_t)W->index * BLOCK; b < W->n; b += (int64_t)W->threads * BLOCK)
+        W->fn(W->ctx, b, b + BLOCK < W->n ? b + BLOCK : W->n);
     return NULL;
 }
 
-/* Marches the n_worlds * rays_per_world rays on `threads` threads (blocks of BLOCK rays taken in
- * turn). Returns 0, or -1 when a thread could not be started (the calling thread then marches
- * that thread's blocks itself). */
-int lh_march(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
-             const float *origin, const float *dirs, const float *t_max, const float *z_max,
-             const float *z_min, const float *t_min, int64_t n_worlds, int64_t rays_per_world,
-             int samples, int refine, double *out, int threads) {
-    const int64_t n = n_worlds * rays_per_world;
+/* fn over [0, n) on `threads` threads. Returns 0, or -1 when a thread could not be started (the
+ * calling thread then runs that thread's blocks itself). */
+static int parallel_for(range_fn fn, const void *ctx, int64_t n, int threads) {
     const int64_t blocks = (n + BLOCK - 1) / BLOCK;
     if (threads < 1) threads = 1;
-    if (threads > 64) threads = 64;
+    if (threads > MAX_THREADS) threads = MAX_THREADS;
     if ((int64_t)threads > blocks) threads = blocks > 0 ? (int)blocks : 1;
-    const march_job_t job = {{h, nx, ny, x0, y0, inv_res}, origin, dirs, t_max, z_max, z_min, t_min,
-                             rays_per_world, samples, refine, out, 0, 0};
-    worker_t workers[64];
-    pthread_t tids[64];
-    int started[64] = {0};
+    worker_t workers[MAX_THREADS];
+    pthread_t tids[MAX_THREADS];
+    int started[MAX_THREADS] = {0};
     int rc = 0;
     for (int i = 0; i < threads; ++i) {
-        workers[i].job = job;
-        workers[i].n_rays = n;
+        workers[i].fn = fn;
+        workers[i].ctx = ctx;
+        workers[i].n = n;
         workers[i].index = i;
         workers[i].threads = threads;
     }
     for (int i = 1; i < threads; ++i) {
-        started[i] = pthread_create(&tids[i], NULL, march_worker, &workers[i]) == 0;
+        started[i] = pthread_create(&tids[i], NULL, run_worker, &workers[i]) == 0;
         if (!started[i]) rc = -1;
     }
-    march_worker(&workers[0]);
+    run_worker(&workers[0]);
     for (int i = 1; i < threads; ++i) {
         if (started[i]) pthread_join(tids[i], NULL);
-        else march_worker(&workers[i]);
+        else run_worker(&workers[i]);
     }
     return rc;
+}
+
+static void fill_frac(float *frac, int samples) {
+    for (int s = 0; s <= samples; ++s) frac[s] = (float)s / (float)samples;
+}
+
+/* ---------------------------------------------------------------- rays given per world */
+
+typedef struct {
+    hmap_t map;
+    const float *origin, *dirs, *t_max, *z_max, *z_min, *t_min;
+    int64_t rays_per_world;
+    int samples, refine;
+    const float *frac;
+    double *out;
+} march_ctx_t;
+
+static void march_block(const void *arg, int64_t begin, int64_t end) {
+    const march_ctx_t *C = (const march_ctx_t *)arg;
+    int64_t w = begin / C->rays_per_world, next = (w + 1) * C->rays_per_world;
+    for (int64_t k = begin; k < end; ++k) {
+        if (k == next) { /* no division per ray: it costs as much as a march sample */
+            ++w;
+            next += C->rays_per_world;
+        }
+        const float t = march_ray(&C->map, C->origin + 3 * w, C->dirs + 3 * k, C->t_max[k],
+                                  C->z_max ? C->z_max[w] : NAN, C->z_min ? C->z_min[w] : NAN,
+                                  C->t_min ? C->t_min[k] : NAN, C->samples, C->refine, C->frac);
+        C->out[k] = (double)t;
+    }
+}
+
+/* Marches rays o_w + t d_wr: origin (n, 3), dirs (n, R, 3) unit, t_max (n, R); z_max, z_min (n,)
+ * and t_min (n, R) may be NULL. out (n, R): distance to the hit, INFINITY for none. */
+int lh_march(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
+             const float *origin, const float *dirs, const float *t_max, const float *z_max,
+             const float *z_min, const float *t_min, int64_t n_worlds, int64_t rays_per_world,
+             int samples, int refine, double *out, int threads) {
+    if (samples < 1 || samples > MAX_SAMPLES || refine < 0) return -2;
+    float frac[MAX_SAMPLES + 1];
+    fill_frac(frac, samples);
+    const march_ctx_t ctx = {{h, nx, ny, x0, y0, inv_res}, origin, dirs, t_max, z_max, z_min, t_min,
+                             rays_per_world, samples, refine, frac, out};
+    return parallel_for(march_block, &ctx, n_worlds * rays_per_world, threads);
+}
+
+/* ---------------------------------------------------------------- the head camera, fused */
+
+typedef struct {
+    hmap_t surface, ground;
+    const float *cam_pos, *cam_mat, *dirs_cam, *t_max, *z_max, *z_min;
+    int64_t rays;
+    int samples, refine;
+    float obstacle_margin;
+    const float *frac;
+    double *dist;
+    uint8_t *on_obstacle;
+} camera_ctx_t;
+
+static void camera_block(const void *arg, int64_t begin, int64_t end) {
+    const camera_ctx_t *C = (const camera_ctx_t *)arg;
+    int64_t w = begin / C->rays, r = begin - w * C->rays;
+    for (int64_t k = begin; k < end; ++k, ++r) {
+        if (r == C->rays) {
+            ++w;
+            r = 0;
+        }
+        const float *o = C->cam_pos + 3 * w, *R = C->cam_mat + 9 * w, *c = C->dirs_cam + 3 * r;
+        const float d[3] = {R[0] * c[0] + R[1] * c[1] + R[2] * c[2], R[3] * c[0] + R[4] * c[1] + R[5] * c[2],
+                            R[6] * c[0] + R[7] * c[1] + R[8] * c[2]};
+        const float t = march_ray(&C->surface, o, d, C->t_max[r], C->z_max ? C->z_max[w] : NAN,
+                                  C->z_min ? C->z_min[w] : NAN, NAN, C->samples, C->refine, C->frac);
+        C->dist[k] = (double)t;
+        uint8_t flag = 0;
+        if (t < INFINITY) { /* the hit's height above the bare ground: an obstacle's top or side */
+            const float hz = o[2] + t * d[2];
+            flag = hz - height_at(&C->ground, o[0] + t * d[0], o[1] + t * d[1]) > C->obstacle_margin;
+        }
+        C->on_obstacle[k] = flag;
+    }
+}
+
+/* The head cameras of n worlds: pixel rays dirs_cam (R, 3) unit in the camera frame, rotated by
+ * cam_mat (n, 3, 3) (row-major, columns = camera axes in the world) from cam_pos (n, 3), marched
+ * against the surface map up to t_max (R,). dist (n, R): distance to the hit (INFINITY for
+ * none); on_obstacle (n, R): the hit lies more than obstacle_margin above the bare ground. */
+int lh_camera(const float *surface, const float *ground, int64_t nx, int64_t ny, float x0, float y0,
+              float inv_res, const float *cam_pos, const float *cam_mat, const float *dirs_cam,
+              const float *t_max, const float *z_max, const float *z_min, int64_t n_worlds, int64_t rays,
+              int samples, int refine, float obstacle_margin, double *dist, uint8_t *on_obstacle,
+              int threads) {
+    if (samples < 1 || samples > MAX_SAMPLES || refine < 0) return -2;
+    float frac[MAX_SAMPLES + 1];
+    fill_frac(frac, samples);
+    const camera_ctx_t ctx = {{surface, nx, ny, x0, y0, inv_res}, {ground, nx, ny, x0, y0, inv_res},
+                              cam_pos, cam_mat, dirs_cam, t_max, z_max, z_min, rays, samples, refine,
+                              obstacle_margin, frac, dist, on_obstacle};
+    return parallel_for(camera_block, &ctx, n_worlds * rays, threads);
 }
 
 /* Bilinear heights at m world points xy (m, 2) -> out (m,). */
 void lh_heights(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
                 const float *xy, int64_t m, float *out) {
-    hmap_t map = {h, nx, ny, x0, y0, inv_res};
-    for (int64_t k = 0; k < m; ++k)
-        out[k] = bilinear(&map, (xy[2 * k] - x0) * inv_res, (xy[2 * k + 1] - y0) * inv_res);
+    const hmap_t map = {h, nx, ny, x0, y0, inv_res};
+    for (int64_t k = 0; k < m; ++k) out[k] = height_at(&map, xy[2 * k], xy[2 * k + 1]);
 }

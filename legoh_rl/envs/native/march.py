@@ -1,6 +1,7 @@
-"""Python entry point of the native height-map ray march.
+"""Python entry points of the native height-map ray march: rays given per world
+(:func:`march_ground_native`) and the head camera's pixel rays in one call (:func:`camera_native`).
 
-Takes and returns numpy arrays and matches the torch reference
+They take and return numpy arrays and match the torch reference
 (:func:`legoh_rl.envs.sensors.march_ground`) to float32 rounding. Needs
 :func:`~legoh_rl.envs.native.build.load_library` to succeed. (The native bilinear lookup is
 :meth:`legoh_rl.envs.height_map.HeightMap.numpy`.)
@@ -15,7 +16,7 @@ import numpy as np
 
 from legoh_rl.envs.native.build import load_library, unavailable_reason
 
-__all__ = ["march_ground_native"]
+__all__ = ["march_ground_native", "camera_native", "same_grid"]
 
 if TYPE_CHECKING:  # height_map imports this package
     from legoh_rl.envs.height_map import HeightMap
@@ -71,8 +72,8 @@ def march_ground_native(
     origin = np.asarray(origin)
     if origin.shape != (n, 3):
         raise ValueError(f"origin must be ({n}, 3) to match dirs {dirs.shape}, got {origin.shape}")
-    if samples < 1 or refine < 0:
-        raise ValueError(f"need samples >= 1 and refine >= 0, got samples={samples}, refine={refine}")
+    if not 1 <= samples <= 1024 or refine < 0:
+        raise ValueError(f"need 1 <= samples <= 1024 and refine >= 0, got samples={samples}, refine={refine}")
     lib = _lib()
     o = _f32(origin, (n, 3), "origin")
     d = _f32(dirs, (n, r, 3), "dirs")
@@ -87,3 +88,72 @@ def march_ground_native(
                      int(samples), int(refine), out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                      int(threads))
     return out
+
+
+def same_grid(a: HeightMap, b: HeightMap) -> bool:
+    """Whether two height maps share one grid (shape, origin, resolution)."""
+    return (a.heights.shape == b.heights.shape and a.x0 == b.x0 and a.y0 == b.y0
+            and a.resolution == b.resolution)
+
+
+def camera_native(
+    surface: HeightMap,
+    ground: HeightMap,
+    cam_pos: np.ndarray,
+    cam_mat: np.ndarray,
+    dirs_cam: np.ndarray,
+    t_max: np.ndarray,
+    samples: int = 12,
+    refine: int = 3,
+    z_max: np.ndarray | None = None,
+    z_min: np.ndarray | None = None,
+    obstacle_margin: float = 0.02,
+    threads: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The depth camera's surface march in one native call: each world's pixel rays are rotated
+    into the world, marched against ``surface`` (as :func:`march_ground_native`), and the hit is
+    compared with ``ground`` underneath.
+
+    Args:
+        surface, ground: height maps on one grid (surface = ground with obstacle tops).
+        cam_pos: (n, 3) camera positions; cam_mat: (n, 3, 3) rotations (columns = camera axes in
+            the world).
+        dirs_cam: (R, 3) unit pixel rays in the camera frame; t_max: (R,) longest distance per ray.
+        samples, refine, z_max, z_min: as :func:`legoh_rl.envs.sensors.march_ground`.
+        obstacle_margin: a hit higher than this above the bare ground is flagged, m.
+        threads: threads to march on.
+
+    Returns:
+        dist (n, R) float64 distance to the surface hit (``inf`` for none) and on_obstacle (n, R)
+        bool (the hit lies on an obstacle).
+
+    Raises:
+        ValueError: the maps are on different grids, or a shape is wrong (named).
+    """
+    if not same_grid(surface, ground):
+        raise ValueError("surface and ground height maps must share one grid (shape, origin, resolution)")
+    dirs_cam = np.asarray(dirs_cam)
+    if dirs_cam.ndim != 2 or dirs_cam.shape[1] != 3:
+        raise ValueError(f"dirs_cam must be (R, 3), got shape {dirs_cam.shape}")
+    cam_pos = np.asarray(cam_pos)
+    if cam_pos.ndim != 2 or cam_pos.shape[1] != 3:
+        raise ValueError(f"cam_pos must be (n, 3), got shape {cam_pos.shape}")
+    n, r = cam_pos.shape[0], dirs_cam.shape[0]
+    if not 1 <= samples <= 1024 or refine < 0:
+        raise ValueError(f"need 1 <= samples <= 1024 and refine >= 0, got samples={samples}, refine={refine}")
+    lib = _lib()
+    pos = _f32(cam_pos, (n, 3), "cam_pos")
+    mat = _f32(cam_mat, (n, 3, 3), "cam_mat")
+    dc = _f32(dirs_cam, (r, 3), "dirs_cam")
+    tm = _f32(t_max, (r,), "t_max")
+    zx = None if z_max is None else _f32(np.asarray(z_max).reshape(-1), (n,), "z_max")
+    zn = None if z_min is None else _f32(np.asarray(z_min).reshape(-1), (n,), "z_min")
+    dist = np.empty((n, r), dtype=np.float64)
+    flag = np.empty((n, r), dtype=np.uint8)
+    if n * r:
+        lib.lh_camera(_ptr(surface.heights), _ptr(ground.heights), surface.heights.shape[0],
+                      surface.heights.shape[1], surface.x0, surface.y0, 1.0 / surface.resolution, _ptr(pos),
+                      _ptr(mat), _ptr(dc), _ptr(tm), _ptr(zx), _ptr(zn), n, r, int(samples), int(refine),
+                      float(obstacle_margin), dist.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
+                      flag.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)), int(threads))
+    return dist, flag.view(bool)
