@@ -1,7 +1,7 @@
 """Control steps/s of the full HikingEnv vs the physics-only limit of the same worlds.
 
     python benchmarks/env_throughput.py [--seconds 5] [--repeats 1] [--threads 2] [--robots h1 g1]
-        [--n 64 256] [--modes oracle student] [--march-samples S]
+        [--n 64 256] [--modes oracle student] [--march-samples S] [--backend auto|native|torch]
 
 For each robot and N: oracle mode (no depth) and student mode (64x64 depth, cast every 5th
 step), beside the physics-only limit measured in the same run (the same model and worlds
@@ -72,6 +72,8 @@ def main() -> None:
     parser.add_argument("--n", nargs="+", type=int, default=[64, 256])
     parser.add_argument("--modes", nargs="+", default=["oracle", "student"], choices=["oracle", "student"])
     parser.add_argument("--march-samples", type=int, default=None, help="depth march samples (default: the config's)")
+    parser.add_argument("--backend", choices=("auto", "native", "torch"), default="auto",
+                        help="depth ray-march implementation (DepthCameraConfig.backend)")
     parser.add_argument("--profile", action="store_true", help="print the top functions of the student run")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -79,7 +81,9 @@ def main() -> None:
     for robot in args.robots:
         for n in args.n:
             for mode in args.modes:
-                cam = DepthCameraConfig() if args.march_samples is None else DepthCameraConfig(march_samples=args.march_samples)
+                cam = DepthCameraConfig(backend=args.backend)
+                if args.march_samples is not None:
+                    cam.march_samples = args.march_samples
                 cfg = HikingEnvConfig(robot=robot, num_envs=n, mode=mode, num_threads=args.threads, levels=(0, 1, 2),
                                       depth_camera=cam)
                 env = HikingEnv(cfg)
