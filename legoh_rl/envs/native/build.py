@@ -21,10 +21,11 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
-__all__ = ["SOURCES", "cache_dir", "compiler", "library_path", "build_library", "load_library",
+__all__ = ["SOURCES", "HEADERS", "cache_dir", "compiler", "library_path", "build_library", "load_library",
            "unavailable_reason"]
 
 SOURCES = tuple(Path(__file__).with_name(name) for name in ("height_march.c", "obstacle_cast.c"))
+HEADERS = (Path(__file__).with_name("parallel.h"),)
 FLAGS = ("-O3", "-fPIC", "-shared", "-pthread", "-std=c99")
 
 _lib: ctypes.CDLL | None = None
@@ -53,7 +54,7 @@ def library_path(cc: str) -> Path:
     """Where the kernel built by ``cc`` from the current source is cached (the name hashes the
     source, the flags, the compiler and the platform, so an edit or another machine rebuilds)."""
     key = hashlib.sha256()
-    for src in SOURCES:
+    for src in (*SOURCES, *HEADERS):
         key.update(src.read_bytes())
     key.update(" ".join((cc, *FLAGS, platform.machine(), sys.platform)).encode())
     suffix = ".dll" if sys.platform == "win32" else ".so"

@@ -16,6 +16,8 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "parallel.h"
+
 #define MAX_THREADS 64
 #define MAX_SAMPLES 1024
 #define BLOCK 512 /* rays per work block; threads take blocks in turn, which balances the load */
@@ -113,26 +115,23 @@ static inline float march_ray(const hmap_t *m, const float *o, const float *d, f
 
 /* ---------------------------------------------------------------- threads over blocks of rays */
 
-typedef void (*range_fn)(const void *ctx, int64_t begin, int64_t end);
-
 typedef struct {
-    range_fn fn;
+    lh_range_fn fn;
     const void *ctx;
-    int64_t n;
+    int64_t n, block;
     int index, threads;
 } worker_t;
 
 static void *run_worker(void *arg) {
     const worker_t *W = (const worker_t *)arg;
-    for (int64_t b = (int64_t)W->index * BLOCK; b < W->n; b += (int64_t)W->threads * BLOCK)
-        W->fn(W->ctx, b, b + BLOCK < W->n ? b + BLOCK : W->n);
+    for (int64_t b = (int64_t)W->index * W->block; b < W->n; b += (int64_t)W->threads * W->block)
+        W->fn(W->ctx, b, b + W->block < W->n ? b + W->block : W->n);
     return NULL;
 }
 
-/* fn over [0, n) on `threads` threads. Returns 0, or -1 when a thread could not be started (the
- * calling thread then runs that thread's blocks itself). */
-static int parallel_for(range_fn fn, const void *ctx, int64_t n, int threads) {
-    const int64_t blocks = (n + BLOCK - 1) / BLOCK;
+int lh_parallel_for(lh_range_fn fn, const void *ctx, int64_t n, int64_t block, int threads) {
+    if (block < 1) block = 1;
+    const int64_t blocks = (n + block - 1) / block;
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
     if ((int64_t)threads > blocks) threads = blocks > 0 ? (int)blocks : 1;
@@ -144,6 +143,7 @@ static int parallel_for(range_fn fn, const void *ctx, int64_t n, int threads) {
         workers[i].fn = fn;
         workers[i].ctx = ctx;
         workers[i].n = n;
+        workers[i].block = block;
         workers[i].index = i;
         workers[i].threads = threads;
     }
@@ -200,7 +200,7 @@ int lh_march(const float *h, int64_t nx, int64_t ny, float x0, float y0, float i
     fill_frac(frac, samples);
     const march_ctx_t ctx = {{h, nx, ny, x0, y0, inv_res}, origin, dirs, t_max, z_max, z_min, t_min,
                              rays_per_world, samples, refine, frac, out};
-    return parallel_for(march_block, &ctx, n_worlds * rays_per_world, threads);
+    return lh_parallel_for(march_block, &ctx, n_worlds * rays_per_world, BLOCK, threads);
 }
 
 /* ---------------------------------------------------------------- the head camera, fused */
@@ -254,7 +254,7 @@ int lh_camera(const float *surface, const float *ground, int64_t nx, int64_t ny,
     const camera_ctx_t ctx = {{surface, nx, ny, x0, y0, inv_res}, {ground, nx, ny, x0, y0, inv_res},
                               cam_pos, cam_mat, dirs_cam, t_max, z_max, z_min, rays, samples, refine,
                               obstacle_margin, frac, dist, on_obstacle};
-    return parallel_for(camera_block, &ctx, n_worlds * rays, threads);
+    return lh_parallel_for(camera_block, &ctx, n_worlds * rays, BLOCK, threads);
 }
 
 /* Bilinear heights at m world points xy (m, 2) -> out (m,). */

@@ -40,6 +40,17 @@ def _f32(a, shape: tuple[int, ...], name: str) -> np.ndarray:
         raise ValueError(f"{name} must have shape {shape} (or broadcast to it), got {a.shape}") from None
 
 
+def _check_march(samples: int, refine: int) -> None:
+    if not 1 <= samples <= 1024 or refine < 0:
+        raise ValueError(f"need 1 <= samples <= 1024 and refine >= 0, got samples={samples}, refine={refine}")
+
+
+def _world_bounds(z_max, z_min, n: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The optional (n,) terrain bounds as float32 arrays (None stays None)."""
+    return tuple(None if z is None else _f32(np.asarray(z).reshape(-1), (n,), name)
+                 for z, name in ((z_max, "z_max"), (z_min, "z_min")))
+
+
 def _ptr(a: np.ndarray | None):
     return None if a is None else a.ctypes.data_as(_F32)
 
@@ -72,14 +83,12 @@ def march_ground_native(
     origin = np.asarray(origin)
     if origin.shape != (n, 3):
         raise ValueError(f"origin must be ({n}, 3) to match dirs {dirs.shape}, got {origin.shape}")
-    if not 1 <= samples <= 1024 or refine < 0:
-        raise ValueError(f"need 1 <= samples <= 1024 and refine >= 0, got samples={samples}, refine={refine}")
+    _check_march(samples, refine)
     lib = _lib()
     o = _f32(origin, (n, 3), "origin")
     d = _f32(dirs, (n, r, 3), "dirs")
     tm = _f32(t_max, (n, r), "t_max")
-    zx = None if z_max is None else _f32(np.asarray(z_max).reshape(-1), (n,), "z_max")
-    zn = None if z_min is None else _f32(np.asarray(z_min).reshape(-1), (n,), "z_min")
+    zx, zn = _world_bounds(z_max, z_min, n)
     tn = None if t_min is None else _f32(t_min, (n, r), "t_min")
     out = np.empty((n, r), dtype=np.float64)
     if n * r:
@@ -139,15 +148,13 @@ def camera_native(
     if cam_pos.ndim != 2 or cam_pos.shape[1] != 3:
         raise ValueError(f"cam_pos must be (n, 3), got shape {cam_pos.shape}")
     n, r = cam_pos.shape[0], dirs_cam.shape[0]
-    if not 1 <= samples <= 1024 or refine < 0:
-        raise ValueError(f"need 1 <= samples <= 1024 and refine >= 0, got samples={samples}, refine={refine}")
+    _check_march(samples, refine)
     lib = _lib()
     pos = _f32(cam_pos, (n, 3), "cam_pos")
     mat = _f32(cam_mat, (n, 3, 3), "cam_mat")
     dc = _f32(dirs_cam, (r, 3), "dirs_cam")
     tm = _f32(t_max, (r,), "t_max")
-    zx = None if z_max is None else _f32(np.asarray(z_max).reshape(-1), (n,), "z_max")
-    zn = None if z_min is None else _f32(np.asarray(z_min).reshape(-1), (n,), "z_min")
+    zx, zn = _world_bounds(z_max, z_min, n)
     dist = np.empty((n, r), dtype=np.float64)
     flag = np.empty((n, r), dtype=np.uint8)
     if n * r:

@@ -6,15 +6,16 @@
  * Culling: consecutive rays are taken in blocks of CULL rays; each geom's bounding sphere is
  * tested against the bounding box of the block's segments, and only the survivors are tested per
  * ray (bounding sphere against the segment, then the exact test). Blocks of rays are split
- * across POSIX threads. Built with height_march.c into one library (see build.py).
+ * across threads (lh_parallel_for). Built with height_march.c into one library (see build.py).
  */
 #include <math.h>
-#include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "parallel.h"
+
 #define CULL 32
-#define OBS_MAX_THREADS 64
+#define OBS_BLOCK (16 * CULL) /* rays per thread work block */
 
 enum { KIND_BOX = 0, KIND_CYLINDER = 1, KIND_MESH = 2 };
 
@@ -100,7 +101,7 @@ static void cast_block(const obs_ctx_t *C, int64_t begin, int64_t end, int64_t *
         }
     }
     int64_t ns = 0;
-    for (int64_t g = 0; g < C->G; ++g) {
+    for (int64_t g = 0; g < C->G && survivors; ++g) {
         double dist2 = 0.0;
         for (int i = 0; i < 3; ++i) {
             const double c = C->pos[3 * g + i];
@@ -115,8 +116,9 @@ static void cast_block(const obs_ctx_t *C, int64_t begin, int64_t end, int64_t *
         double dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
         if (!(dd > 1e-300)) dd = 1e-300;
         double best = INFINITY;
-        for (int64_t j = 0; j < ns; ++j) {
-            const int64_t g = survivors[j];
+        const int64_t count = survivors ? ns : C->G; /* no culling list: every geom */
+        for (int64_t j = 0; j < count; ++j) {
+            const int64_t g = survivors ? survivors[j] : j;
             const double *c = C->pos + 3 * g, *R = C->mat + 9 * g;
             const double oc[3] = {c[0] - o[0], c[1] - o[1], c[2] - o[2]};
             double ts = (oc[0] * d[0] + oc[1] * d[1] + oc[2] * d[2]) / dd;
@@ -140,50 +142,21 @@ static void cast_block(const obs_ctx_t *C, int64_t begin, int64_t end, int64_t *
     }
 }
 
-typedef struct {
-    const obs_ctx_t *ctx;
-    int index, threads;
-} obs_worker_t;
-
-static void *obs_worker(void *arg) {
-    const obs_worker_t *W = (const obs_worker_t *)arg;
-    const obs_ctx_t *C = W->ctx;
+static void cast_range(const void *arg, int64_t begin, int64_t end) {
+    const obs_ctx_t *C = (const obs_ctx_t *)arg;
+    /* the block cull's list; without memory every ray tests every geom (slower, same result) */
     int64_t *survivors = (int64_t *)malloc(sizeof(int64_t) * (size_t)(C->G > 0 ? C->G : 1));
-    if (!survivors) return (void *)1;
-    for (int64_t b = (int64_t)W->index * CULL; b < C->M; b += (int64_t)W->threads * CULL)
-        cast_block(C, b, b + CULL < C->M ? b + CULL : C->M, survivors);
+    for (int64_t b = begin; b < end; b += CULL) cast_block(C, b, b + CULL < end ? b + CULL : end, survivors);
     free(survivors);
-    return NULL;
 }
 
 /* Distances (M,) of rays o + t d, t in [0, tm], to the first geom surface (INFINITY for none).
  * kind: 0 box (size = half-sizes), 1 cylinder (radius, half-length), 2 convex mesh (planes).
- * Returns 0, or -1 when memory or a thread could not be had (out is then incomplete). */
+ * Returns 0, or -1 when a thread could not be started (the result is complete either way). */
 int lh_obstacle_cast(int64_t G, const int32_t *kind, const double *pos, const double *mat,
                      const double *size, const double *r2, const int64_t *plane_start,
                      const int64_t *plane_count, const double *planes, int64_t M, const double *o,
                      const double *d, const double *tm, double *out, int threads) {
     const obs_ctx_t ctx = {G, kind, pos, mat, size, r2, plane_start, plane_count, planes, o, d, tm, out, M};
-    const int64_t blocks = (M + CULL - 1) / CULL;
-    if (threads < 1) threads = 1;
-    if (threads > OBS_MAX_THREADS) threads = OBS_MAX_THREADS;
-    if ((int64_t)threads > blocks) threads = blocks > 0 ? (int)blocks : 1;
-    obs_worker_t workers[OBS_MAX_THREADS];
-    pthread_t tids[OBS_MAX_THREADS];
-    int started[OBS_MAX_THREADS] = {0};
-    int rc = 0;
-    for (int i = 0; i < threads; ++i) {
-        workers[i].ctx = &ctx;
-        workers[i].index = i;
-        workers[i].threads = threads;
-    }
-    for (int i = 1; i < threads; ++i) started[i] = pthread_create(&tids[i], NULL, obs_worker, &workers[i]) == 0;
-    if (obs_worker(&workers[0]) != NULL) rc = -1;
-    for (int i = 1; i < threads; ++i) {
-        void *res = NULL;
-        if (started[i]) pthread_join(tids[i], &res);
-        else res = obs_worker(&workers[i]);
-        if (res != NULL) rc = -1;
-    }
-    return rc;
+    return lh_parallel_for(cast_range, &ctx, M, OBS_BLOCK, threads);
 }

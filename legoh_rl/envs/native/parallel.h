@@ -1,0 +1,13 @@
+/* Blocks of a range of work items split across POSIX threads (defined in height_march.c, shared by
+ * the native kernels). */
+#ifndef LEGOH_RL_PARALLEL_H
+#define LEGOH_RL_PARALLEL_H
+#include <stdint.h>
+
+typedef void (*lh_range_fn)(const void *ctx, int64_t begin, int64_t end);
+
+/* fn over [0, n) in blocks of `block` items, taken in turn by `threads` threads. Returns 0, or -1
+ * when a thread could not be started (the calling thread then runs that thread's blocks itself). */
+int lh_parallel_for(lh_range_fn fn, const void *ctx, int64_t n, int64_t block, int threads);
+
+#endif
