@@ -9,7 +9,6 @@ coordinate transform.
 
 from __future__ import annotations
 
-import ctypes
 from collections.abc import Callable
 
 import numpy as np
@@ -70,17 +69,45 @@ class HeightMap:
         """Heights at world points given as numpy, (M, 2) -> (M,) float64.
 
         Uses the native bilinear kernel (:mod:`legoh_rl.envs.native`) when it is available (the
-        same values to float32 rounding, without torch's per-call overhead), else ``grid_sample``.
+        same values: points rounded to float32 as ``grid_sample`` sees them, without torch's
+        per-call overhead), else ``grid_sample``.
         """
-        p = np.ascontiguousarray(xy, dtype=np.float32).reshape(-1, 2)
         lib = load_library()
         if lib is None:
-            return self(torch.from_numpy(p)).numpy().astype(np.float64)
-        out = np.empty(p.shape[0], dtype=np.float32)
-        f32 = ctypes.POINTER(ctypes.c_float)
-        lib.lh_heights(self.heights.ctypes.data_as(f32), self.heights.shape[0], self.heights.shape[1], self.x0,
-                       self.y0, 1.0 / self.resolution, p.ctypes.data_as(f32), p.shape[0], out.ctypes.data_as(f32))
-        return out.astype(np.float64)
+            p = torch.from_numpy(np.asarray(xy, dtype=np.float32).reshape(-1, 2))
+            return self(p).numpy().astype(np.float64)
+        p = np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2)
+        out = np.empty(p.shape[0])
+        lib.lh_heights(self.heights.ctypes.data, *self._grid_args, p.ctypes.data, p.shape[0], out.ctypes.data)
+        return out
+
+    def numpy_around(self, xy: np.ndarray, yaw: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Heights at points given in each robot's yaw frame: robots at world ``xy`` (N, 2) with
+        headings ``yaw`` (N,), points ``offsets`` (K, 2) (forward, left) -> (N, K) float64.
+
+        The same as :meth:`numpy` at ``xy + R(yaw) offsets``, in one native call when available.
+        """
+        xy = np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2)
+        yaw = np.ascontiguousarray(yaw, dtype=np.float64).reshape(-1)
+        offsets = np.ascontiguousarray(offsets, dtype=np.float64).reshape(-1, 2)
+        if yaw.shape[0] != xy.shape[0]:
+            raise ValueError(f"need one yaw per robot: xy has {xy.shape[0]} rows, yaw {yaw.shape[0]}")
+        n, k = xy.shape[0], offsets.shape[0]
+        lib = load_library()
+        if lib is None:
+            c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+            px = xy[:, :1] + c * offsets[:, 0] - s * offsets[:, 1]
+            py = xy[:, 1:] + s * offsets[:, 0] + c * offsets[:, 1]
+            return self.numpy(np.stack([px, py], axis=-1).reshape(-1, 2)).reshape(n, k)
+        out = np.empty((n, k))
+        lib.lh_heights_around(self.heights.ctypes.data, *self._grid_args, xy.ctypes.data, yaw.ctypes.data,
+                              offsets.ctypes.data, n, k, out.ctypes.data)
+        return out
+
+    @property
+    def _grid_args(self) -> tuple:
+        """(nx, ny, x0, y0, 1 / resolution): the native kernels' description of the grid."""
+        return (*self.heights.shape, self.x0, self.y0, 1.0 / self.resolution)
 
 
 class WorldSampler:

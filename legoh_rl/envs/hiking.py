@@ -43,7 +43,6 @@ from legoh_rl.envs.sensors import (
     scandot_offsets,
     scandots,
     world_to_yaw_frame,
-    yaw_from_quat,
 )
 from legoh_rl.envs.threads import torch_threads
 
@@ -54,6 +53,7 @@ ANG_VEL_SCALE = 0.25
 DOF_VEL_SCALE = 0.05
 LIN_VEL_SCALE = 2.0
 CONTACT_FORCE_THRESHOLD = 1.0  # N: a foot is in contact above this net force
+_CPU = torch.device("cpu")
 
 
 class TrailSource(Protocol):
@@ -63,7 +63,10 @@ class TrailSource(Protocol):
     (index into ``categories``), ``tile_start``, ``tile_end``, ``tile_waypoint`` (T, 3) world
     coordinates, ``tile_goals`` (T, G, 3) padded, ``tile_num_goals`` (T,) int.
     ``height_at`` is the surface (ground and obstacle tops), ``ground_height_at`` the bare ground
-    (geom group 0; obstacles are in group 1).
+    (geom group 0; obstacles are in group 1). Optional faster lookups the env uses when present:
+    ``height_around(xy, yaw, offsets)`` (the scandots), ``height_at_t``/``ground_height_at_t``
+    (:class:`~legoh_rl.envs.height_map.HeightMap`, the depth camera), ``max_height_near``/
+    ``min_height_near`` (the camera's march bounds).
     """
 
     categories: tuple[str, ...]
@@ -135,6 +138,10 @@ class HikingEnv(EnvBase):
             caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
             self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg, obstacle_caster=caster)
         self.scandot_xy = scandot_offsets()
+        # sensordata columns of the feet's and the penalised bodies' contact forces, (2, 3) and (P, 3)
+        self._foot_force_cols = np.array([[a + 1, a + 2, a + 3] for a in self.built.foot_sensor_adr], dtype=np.int64)
+        self._pen_force_cols = np.array([[a + 1, a + 2, a + 3] for a in self.built.penalised_sensor_adr],
+                                        dtype=np.int64).reshape(-1, 3)
         self.swing_joints = swing_joints(self.robot.leg_joints) if cfg.gait_period else None
         self.rng = np.random.default_rng(cfg.seed)
         self.global_steps = 0
@@ -184,6 +191,8 @@ class HikingEnv(EnvBase):
             c = self.cfg.depth_camera
             self.depth = np.ones((N, 1, c.height, c.width), dtype=np.float32)
         self.tick = np.ones(N, dtype=bool)
+        self._no_worlds = np.zeros(N, dtype=bool)  # read-only all-False mask
+        self._no_worlds.flags.writeable = False
         self._obs: dict | None = None  # the last observation arrays, for partial resets
 
     def _make_specs(self) -> None:
@@ -247,7 +256,8 @@ class HikingEnv(EnvBase):
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
         self._reset_worlds(ids)
         self.tick[ids] = True  # a reset world gets a fresh depth frame
-        self._render_depth(np.isin(np.arange(N), ids))
+        if self.camera is not None:
+            self._render_depth(np.isin(np.arange(N), ids))
         if self._obs is None or ids.size == N:
             obs = self._full_observations()
         else:  # only the reset worlds changed since the last step: refresh their rows
@@ -275,15 +285,16 @@ class HikingEnv(EnvBase):
         if not action.dtype.is_floating_point:
             raise TypeError(f"action must be a floating-point tensor, got dtype {action.dtype}")
         a = action.detach().cpu().numpy().astype(np.float64)
-        bad_action = ~np.isfinite(a).all(axis=1)
-        if bad_action.any():  # documented: replaced by zeros (default pose) and counted
+        bad_action = self._no_worlds
+        if not np.isfinite(a.sum()):  # documented: rows with NaN/inf are replaced by zeros and counted
+            bad_action = ~np.isfinite(a).all(axis=1)
             a[bad_action] = 0.0
             self.bad_action_total += int(bad_action.sum())
         clip = self.cfg.action_clip
         a = np.clip(a, -clip, clip)
         self.action_prev[:] = self.action
         self.action[:] = a
-        self.action_hist = np.roll(self.action_hist, 1, axis=1)
+        self.action_hist[:, 1:] = self.action_hist[:, :-1]  # newest first (numpy copies overlapping slices safely)
         self.action_hist[:, 0] = a
         delay = self.randomizer.delay_steps(self.global_steps)
         applied = self.action_hist[:, min(delay, self.action_hist.shape[1] - 1)]
@@ -337,7 +348,7 @@ class HikingEnv(EnvBase):
         for key in {(int(lv), int(c)) for lv, c in zip(levels, self.world_category[ids], strict=True)}:
             sel = (levels == key[0]) & (self.world_category[ids] == key[1])
             choices = self._tiles_for(*key)
-            tiles[sel] = self.rng.choice(choices, size=int(sel.sum()))
+            tiles[sel] = choices[self.rng.integers(0, choices.size, size=int(sel.sum()))]  # = rng.choice, faster
         self.tile[ids] = tiles
         self.start[ids] = tr.tile_start[tiles]
         self.end[ids] = tr.tile_end[tiles]
@@ -398,8 +409,7 @@ class HikingEnv(EnvBase):
 
     def _empty_episode(self) -> dict:
         N = self.cfg.num_envs
-        ep = {name: np.zeros(N) for name in METRIC_NAMES}
-        ep["time_to_reach"] = np.full(N, np.nan)
+        ep = {name: np.full(N, np.nan) if name == "time_to_reach" else np.zeros(N) for name in METRIC_NAMES}
         ep["level"] = self.trails.tile_level[self.tile].copy()
         ep["category"] = self.trails.tile_category[self.tile].copy()
         return ep
@@ -423,14 +433,14 @@ class HikingEnv(EnvBase):
         rot = quat_to_rotmat(quat)
         gravity_b = -rot[:, 2, :]  # world -z in the base frame = third row of R, negated
         roll, pitch = roll_pitch_from_gravity(gravity_b)
-        yaw = yaw_from_quat(quat)
+        yaw = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])  # = yaw_from_quat(quat)
         lin_vel_w = qvel[:, 0:3].copy()
-        lin_vel_b = np.einsum("nji,nj->ni", rot, lin_vel_w)
+        lin_vel_b = (lin_vel_w[:, None, :] @ rot)[:, 0]  # R^T v
         ang_vel_b = qvel[:, 3:6].copy()  # free joint: angular velocity in the body frame
         sd = w.sensordata[sel]
-        foot_force = np.stack([sd[:, a + 1 : a + 4] for a in b.foot_sensor_adr], axis=1)
-        pen_force = np.stack([sd[:, a + 1 : a + 4] for a in b.penalised_sensor_adr], axis=1)
-        contact = np.linalg.norm(foot_force, axis=-1) > CONTACT_FORCE_THRESHOLD
+        foot_force = sd[:, self._foot_force_cols]  # (N, 2, 3)
+        pen_force = sd[:, self._pen_force_cols]  # (N, P, 3)
+        contact = np.einsum("nfi,nfi->nf", foot_force, foot_force) > CONTACT_FORCE_THRESHOLD**2
         feet_pos = w.xpos[sel][:, b.foot_body_ids]
         feet_xy = feet_pos[..., :2]
         foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
@@ -446,7 +456,7 @@ class HikingEnv(EnvBase):
             "torques": w.actuator_force[sel][:, b.actuator_ids],
             "foot_force": foot_force, "pen_force": pen_force, "contact": contact,
             "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
-            "goal_vec": goal_vec, "goal_dist": np.linalg.norm(goal_vec, axis=1),
+            "goal_vec": goal_vec, "goal_dist": np.hypot(goal_vec[:, 0], goal_vec[:, 1]),
             "feet_xy": feet_xy.copy(), "foot_lift": feet_pos[..., 2] - feet_ground - self.robot.foot_rest_height,
             "gait_phase": None if phase is None else phase[sel],
         }
@@ -542,7 +552,8 @@ class HikingEnv(EnvBase):
         proprio = np.concatenate(
             [
                 s["ang_vel_b"] * ANG_VEL_SCALE,
-                np.stack([s["roll"], s["pitch"]], axis=1),
+                s["roll"][:, None],
+                s["pitch"][:, None],
                 s["q"] - self.q_default,
                 s["dq"] * DOF_VEL_SCALE,
                 self.action[sel],
@@ -551,12 +562,17 @@ class HikingEnv(EnvBase):
             ],
             axis=1,
         )
-        dirs_b = world_to_yaw_frame(s["goal_dirs_w"], yaw)
+        # goal, waypoint and expert-goal directions rotated together: (N, 2 + k, 2)
+        vecs = world_to_yaw_frame(np.concatenate(
+            [s["goal_vec"][:, None], (self.waypoint[sel, :2] - s["pos"][:, :2])[:, None], s["goal_dirs_w"]], axis=1
+        ), yaw)
+        dirs_b = vecs[:, 2:]
         obs = {
             "proprio": proprio,
-            "goal_gps": world_to_yaw_frame(s["goal_vec"], yaw),
-            "waypoint_gps": world_to_yaw_frame(self.waypoint[sel, :2] - s["pos"][:, :2], yaw),
-            "scandots": scandots(s["pos"], yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target),
+            "goal_gps": vecs[:, 0],
+            "waypoint_gps": vecs[:, 1],
+            "scandots": scandots(s["pos"], yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target,
+                                 getattr(self.trails, "height_around", None)),
             "privileged": np.concatenate([s["lin_vel_b"] * LIN_VEL_SCALE, self.randomizer.privileged()[sel]], axis=1),
             "expert_goals": dirs_b,
             "perception_tick": self.tick[sel, None],
@@ -579,30 +595,31 @@ class HikingEnv(EnvBase):
         given) the reward and the (done, terminated, truncated) flags.
 
         Every value is a fresh tensor (the env keeps updating its buffers, e.g. depth and tick, in
-        place). The (N, 1) columns of each dtype are written into one (K, N) array first, so a step
-        makes a handful of tensors rather than one per key; each key is a contiguous row of it.
+        place). The (N,) columns of each dtype are written into one (K, N) array, one tensor whose
+        rows are the (N, 1) values, so a step makes a handful of tensors rather than one per key.
+        The tensordict is assembled without per-key validation (``TensorDict._new_unsafe``, as
+        torchrl's own wrappers do): every shape and dtype here is fixed by construction and
+        checked against the specs by the tests (``check_env_specs``).
         """
-        N, dev = self.cfg.num_envs, self.device
-        float_cols = [(("reward_terms", k), v) for k, v in reward_terms.items()]
-        float_cols += [(("episode", k), v) for k, v in episode.items() if k not in ("level", "category")]
-        int_cols = [(("episode", k), episode[k]) for k in ("level", "category") if k in episode]
-        bool_cols = [(("info", "diverged"), info[0]), (("info", "bad_action"), info[1])]
+        def rows(columns: list, dtype: type) -> tuple[torch.Tensor, ...]:  # K x (N,) -> K x (N, 1)
+            return torch.from_numpy(np.array(columns, dtype=dtype)).unsqueeze(-1).unbind(0)
+
+        out: dict = {k: torch.from_numpy(np.array(v, dtype=bool if k == "perception_tick" else np.float32))
+                     for k, v in obs.items()}
+        names = list(reward_terms)
+        floats = rows([reward_terms[k] for k in names] + [episode[k] for k in METRIC_NAMES]
+                      + ([] if reward is None else [reward]), np.float32)
+        out["reward_terms"] = dict(zip(names, floats, strict=False))
+        out["episode"] = dict(zip(METRIC_NAMES, floats[len(names):], strict=False))
+        out["episode"]["level"], out["episode"]["category"] = rows([episode["level"], episode["category"]], np.int64)
+        bools = rows([info[0], info[1], *(flags or ())], bool)
+        out["info"] = {"diverged": bools[0], "bad_action": bools[1]}
         if reward is not None:
-            float_cols.append((("reward",), reward))
+            out["reward"] = floats[-1]
         if flags is not None:
-            bool_cols += [((k,), v) for k, v in zip(("done", "terminated", "truncated"), flags, strict=True)]
-        data: dict = {k: torch.from_numpy(np.array(v, dtype=bool if k == "perception_tick" else np.float32))
-                      for k, v in obs.items()}
-        for cols, dtype in ((float_cols, np.float32), (int_cols, np.int64), (bool_cols, bool)):
-            if not cols:
-                continue
-            block = torch.from_numpy(np.stack([np.asarray(v).reshape(N) for _, v in cols]).astype(dtype, copy=False))
-            for i, (key, _) in enumerate(cols):
-                node = data
-                for part in key[:-1]:
-                    node = node.setdefault(part, {})
-                node[key[-1]] = block[i].view(N, 1)
-        return TensorDict(data, batch_size=[N], device=dev)
+            out["done"], out["terminated"], out["truncated"] = bools[2:]
+        td = TensorDict._new_unsafe(out, batch_size=self.batch_size, device=_CPU)
+        return td if self.device == _CPU else td.to(self.device)
 
     # ------------------------------------------------------------------ evaluation protocol
     def assign_tiles(self, levels: np.ndarray, categories: np.ndarray) -> None:

@@ -185,14 +185,15 @@ class BatchedWorlds:
         except mjb.SimulationError as err:  # those worlds kept their pre-step state
             failed[np.asarray(err.ids, dtype=np.int64)] = True
         warn = self._instability_count()
-        bad = (
-            failed
-            | (warn > self._warn_seen)
-            | ~np.isfinite(self.qpos).all(axis=1)
-            | ~np.isfinite(self.qvel).all(axis=1)
-            | (np.abs(self.qvel).max(axis=1) > MAX_ABS_QVEL)
-        )
+        bad = failed | (warn > self._warn_seen)
         self._warn_seen = warn
+        # one reduction per array in the usual case (all finite and bounded), rows only otherwise
+        if not (np.isfinite(self.qpos.sum()) and np.abs(self.qvel).max() <= MAX_ABS_QVEL):
+            bad |= (
+                ~np.isfinite(self.qpos).all(axis=1)
+                | ~np.isfinite(self.qvel).all(axis=1)
+                | (np.abs(self.qvel).max(axis=1) > MAX_ABS_QVEL)
+            )
         if bad.any():
             idx = np.flatnonzero(bad)
             self.diverged_total += int(idx.size)

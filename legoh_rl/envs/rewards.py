@@ -118,6 +118,11 @@ class RewardState:
             raise ValueError(f"this reward term needs RewardState fields {missing}, which are None")
 
 
+def _sq_sum(x: np.ndarray) -> np.ndarray:
+    """Sum of squares over the last axis, (..., K) -> (...) (one pass; ``np.sum(x**2, -1)``)."""
+    return np.einsum("...i,...i->...", x, x)
+
+
 def reward_tracking_goal_vel(s: RewardState) -> np.ndarray:
     """min(v_target . v_t, cmd_x) / (cmd_x + eps): speed toward the current expert goal."""
     along = np.einsum("ij,ij->i", s.goal_dir_w, s.lin_vel_w[:, :2])
@@ -127,7 +132,7 @@ def reward_tracking_goal_vel(s: RewardState) -> np.ndarray:
 def reward_tracking_yaw(s: RewardState) -> np.ndarray:
     """exp(-|psi_target - psi_t|), the yaw error wrapped to [-pi, pi]."""
     target = np.arctan2(s.goal_dir_w[:, 1], s.goal_dir_w[:, 0])
-    err = np.angle(np.exp(1j * (target - s.yaw)))
+    err = np.mod(target - s.yaw + np.pi, 2.0 * np.pi) - np.pi
     return np.exp(-np.abs(err))
 
 
@@ -138,54 +143,53 @@ def reward_lin_vel_z(s: RewardState) -> np.ndarray:
 
 def reward_ang_vel_xy(s: RewardState) -> np.ndarray:
     """w_x^2 + w_y^2 (base frame)."""
-    return np.sum(s.ang_vel_b[:, :2] ** 2, axis=1)
+    return _sq_sum(s.ang_vel_b[:, :2])
 
 
 def reward_orientation(s: RewardState) -> np.ndarray:
     """g_x^2 + g_y^2 of gravity in the base frame: zero when upright."""
-    return np.sum(s.gravity_b[:, :2] ** 2, axis=1)
+    return _sq_sum(s.gravity_b[:, :2])
 
 
 def reward_dof_acc(s: RewardState) -> np.ndarray:
     """sum ((dq_{t-1} - dq_t) / dt)^2."""
-    return np.sum(((s.dq_prev - s.dq) / s.dt) ** 2, axis=1)
+    return _sq_sum(s.dq_prev - s.dq) / s.dt**2
 
 
 def reward_collision(s: RewardState) -> np.ndarray:
     """Number of penalised (non-foot) bodies with a contact force above 0.1 N."""
-    return np.sum(np.linalg.norm(s.penalised_force, axis=-1) > 0.1, axis=1).astype(np.float64)
+    return np.count_nonzero(_sq_sum(s.penalised_force) > 0.1**2, axis=1).astype(np.float64)
 
 
 def reward_action_rate(s: RewardState) -> np.ndarray:
     """||a_{t-1} - a_t|| (L2 norm, as the paper writes it)."""
-    return np.linalg.norm(s.action_prev - s.action, axis=1)
+    return np.sqrt(_sq_sum(s.action_prev - s.action))
 
 
 def reward_delta_torques(s: RewardState) -> np.ndarray:
     """sum (tau_t - tau_{t-1})^2."""
-    return np.sum((s.torques - s.torques_prev) ** 2, axis=1)
+    return _sq_sum(s.torques - s.torques_prev)
 
 
 def reward_torques(s: RewardState) -> np.ndarray:
     """sum tau_t^2."""
-    return np.sum(s.torques**2, axis=1)
+    return _sq_sum(s.torques)
 
 
 def reward_hip_pos(s: RewardState) -> np.ndarray:
     """sum over hip yaw/roll joints of (q - q_default)^2."""
-    err = (s.q - s.q_default)[:, s.hip_idx]
-    return np.sum(err**2, axis=1)
+    return _sq_sum((s.q - s.q_default)[:, s.hip_idx])
 
 
 def reward_dof_error(s: RewardState) -> np.ndarray:
     """sum (q - q_default)^2 over all leg joints."""
-    return np.sum((s.q - s.q_default) ** 2, axis=1)
+    return _sq_sum(s.q - s.q_default)
 
 
 def reward_feet_stumble(s: RewardState) -> np.ndarray:
     """1 if any foot's horizontal contact force exceeds 4x its vertical one (hitting a riser)."""
-    horiz = np.linalg.norm(s.foot_force[..., :2], axis=-1)
-    return np.any(horiz > 4.0 * np.abs(s.foot_force[..., 2]), axis=1).astype(np.float64)
+    horiz2 = _sq_sum(s.foot_force[..., :2])  # |F_xy| > 4 |F_z|  <=>  |F_xy|^2 > 16 F_z^2
+    return np.any(horiz2 > 16.0 * s.foot_force[..., 2] ** 2, axis=1).astype(np.float64)
 
 
 def reward_feet_edge(s: RewardState) -> np.ndarray:
@@ -218,14 +222,14 @@ def reward_dof_pos_limits(s: RewardState) -> np.ndarray:
 def reward_feet_clearance(s: RewardState) -> np.ndarray:
     """sum over feet of (lift - swing_height)^2 * sqrt(|v_xy|): moving feet should be lifted."""
     s.require("foot_lift", "foot_vel_xy")
-    speed = np.linalg.norm(s.foot_vel_xy, axis=-1)
+    speed = np.sqrt(_sq_sum(s.foot_vel_xy))
     return np.sum((s.foot_lift - s.swing_height) ** 2 * np.sqrt(speed), axis=1)
 
 
 def reward_feet_slip(s: RewardState) -> np.ndarray:
     """sum over feet in contact of |v_xy|: feet on the ground should not slide (a shuffle does)."""
     s.require("feet_contact", "foot_vel_xy")
-    return np.sum(np.linalg.norm(s.foot_vel_xy, axis=-1) * s.feet_contact, axis=1)
+    return np.sum(np.sqrt(_sq_sum(s.foot_vel_xy)) * s.feet_contact, axis=1)
 
 
 def reward_gait_contact(s: RewardState) -> np.ndarray:
@@ -238,7 +242,7 @@ def reward_gait_joint_ref(s: RewardState) -> np.ndarray:
     """exp(-2 ||q - q_ref||) - 0.2 min(||q - q_ref||, 0.5): leg joints that follow the clock's
     swing reference ``q_ref = q_default + swing_reference`` (Humanoid-Gym's joint-position term)."""
     s.require("gait_ref_q")
-    d = np.linalg.norm(s.q - s.gait_ref_q, axis=1)
+    d = np.sqrt(_sq_sum(s.q - s.gait_ref_q))
     return np.exp(-2.0 * d) - 0.2 * np.minimum(d, 0.5)
 
 

@@ -419,6 +419,7 @@ def scandots(
     offsets: np.ndarray,
     height_fn: Callable[[np.ndarray], np.ndarray],
     base_height_target: float,
+    heights_around: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
 ) -> np.ndarray:
     """Terrain heights around the robot, relative to where the ground would be under a nominal base.
 
@@ -431,30 +432,54 @@ def scandots(
         offsets: (K, 2) sample points in the yaw frame (:func:`scandot_offsets`).
         height_fn: surface height at world xy points, (M, 2) -> (M,).
         base_height_target: nominal base height above the ground, m.
+        heights_around: optional faster lookup of the same heights, ``(xy (N, 2), yaw (N,),
+            offsets (K, 2)) -> (N, K)`` (e.g. ``GridTrails.height_around``); used instead of
+            rotating the points here and calling ``height_fn``.
 
     Returns:
         (N, K) float32.
     """
-    c, s = np.cos(yaw), np.sin(yaw)
-    px = base_pos[:, None, 0] + c[:, None] * offsets[None, :, 0] - s[:, None] * offsets[None, :, 1]
-    py = base_pos[:, None, 1] + s[:, None] * offsets[None, :, 0] + c[:, None] * offsets[None, :, 1]
-    pts = np.stack([px, py], axis=-1).reshape(-1, 2)
-    h = height_fn(pts).reshape(base_pos.shape[0], offsets.shape[0])
+    n, k = base_pos.shape[0], offsets.shape[0]
+    if heights_around is not None:
+        h = heights_around(base_pos[:, :2], yaw, offsets)
+    else:
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        px = base_pos[:, :1] + c * offsets[:, 0] - s * offsets[:, 1]
+        py = base_pos[:, 1:2] + s * offsets[:, 0] + c * offsets[:, 1]
+        h = height_fn(np.stack([px, py], axis=-1).reshape(-1, 2)).reshape(n, k)
     ground = base_pos[:, 2:3] - base_height_target
     return np.clip(h - ground, -1.0, 1.0).astype(np.float32)
 
 
+def _quat_product_map() -> np.ndarray:
+    """(16, 9) coefficients: vec(R) = vec(q q^T) @ map + vec(I) for a unit quaternion q = (w, x, y, z)."""
+    w, x, y, z = range(4)
+    terms = {  # R entry (row-major) -> [(coefficient, i, j)] over products q_i q_j, identity added apart
+        0: [(-2, y, y), (-2, z, z)], 1: [(2, x, y), (-2, w, z)], 2: [(2, x, z), (2, w, y)],
+        3: [(2, x, y), (2, w, z)], 4: [(-2, x, x), (-2, z, z)], 5: [(2, y, z), (-2, w, x)],
+        6: [(2, x, z), (-2, w, y)], 7: [(2, y, z), (2, w, x)], 8: [(-2, x, x), (-2, y, y)],
+    }
+    m = np.zeros((16, 9))
+    for entry, products in terms.items():
+        for coef, i, j in products:
+            m[4 * i + j, entry] += coef
+    return m
+
+
+_QUAT_PRODUCTS_TO_R = _quat_product_map()
+_EYE9 = np.eye(3).reshape(9)
+
+
 def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions (w, x, y, z): (N, 4) -> (N, 3, 3)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        axis=1,
-    )
+    """Rotation matrices of unit quaternions (w, x, y, z): (N, 4) -> (N, 3, 3).
+
+    ``R = I + 2 [[-(y^2+z^2), xy - wz, xz + wy], [xy + wz, -(x^2+z^2), yz - wx], [xz - wy, yz + wx,
+    -(x^2+y^2)]]``, evaluated as one product of the quaternions' outer products with a constant
+    (16, 9) map (a handful of array operations for any N).
+    """
+    q = np.asarray(q, dtype=np.float64)
+    outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)
+    return (outer @ _QUAT_PRODUCTS_TO_R + _EYE9).reshape(-1, 3, 3)
 
 
 def yaw_from_quat(q: np.ndarray) -> np.ndarray:

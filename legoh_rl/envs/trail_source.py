@@ -72,6 +72,11 @@ class GridTrails:
         """Surface height (ground and obstacle tops) at world points, (M, 2) -> (M,)."""
         return self.height_at_t.numpy(xy)
 
+    def height_around(self, xy: np.ndarray, yaw: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Surface heights at points ``offsets`` (K, 2) in the yaw frames of robots at ``xy`` (N, 2)
+        with headings ``yaw`` (N,), (N, K) (the scandots' lookup, one native call)."""
+        return self.height_at_t.numpy_around(xy, yaw, offsets)
+
     def ground_height_at(self, xy: np.ndarray) -> np.ndarray:
         """Bare heightfield height (no obstacles) at world points, (M, 2) -> (M,)."""
         return self.ground_height_at_t.numpy(xy)

@@ -105,8 +105,11 @@ def _declare(lib: ctypes.CDLL) -> None:
     i32, i64p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_int64)
     lib.lh_obstacle_cast.restype = c_int
     lib.lh_obstacle_cast.argtypes = [i64, i32, f64, f64, f64, f64, i64p, i64p, f64, i64, f64, f64, f64, f64, c_int]
+    ptr = ctypes.c_void_p  # the small per-step lookups take raw addresses (array.ctypes.data): cheaper calls
     lib.lh_heights.restype = None
-    lib.lh_heights.argtypes = [f32, i64, i64, flt, flt, flt, f32, i64, f32]
+    lib.lh_heights.argtypes = [ptr, i64, i64, flt, flt, flt, ptr, i64, ptr]
+    lib.lh_heights_around.restype = None
+    lib.lh_heights_around.argtypes = [ptr, i64, i64, flt, flt, flt, ptr, ptr, ptr, i64, i64, ptr]
 
 
 def _disabled() -> str | None:

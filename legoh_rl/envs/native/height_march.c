@@ -257,9 +257,26 @@ int lh_camera(const float *surface, const float *ground, int64_t nx, int64_t ny,
     return lh_parallel_for(camera_block, &ctx, n_worlds * rays, BLOCK, threads);
 }
 
-/* Bilinear heights at m world points xy (m, 2) -> out (m,). */
+/* Bilinear heights at m world points xy (m, 2) -> out (m,). The points are rounded to float, as
+ * the march's are; the heights come back as double. */
 void lh_heights(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
-                const float *xy, int64_t m, float *out) {
+                const double *xy, int64_t m, double *out) {
     const hmap_t map = {h, nx, ny, x0, y0, inv_res};
-    for (int64_t k = 0; k < m; ++k) out[k] = height_at(&map, xy[2 * k], xy[2 * k + 1]);
+    for (int64_t k = 0; k < m; ++k) out[k] = (double)height_at(&map, (float)xy[2 * k], (float)xy[2 * k + 1]);
+}
+
+/* Heights at k points around each of n robots: offsets (k, 2) in the yaw frame of a robot at xy
+ * (n, 2) (world, m) with heading yaw (n,) -> out (n, k), row-major. */
+void lh_heights_around(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
+                       const double *xy, const double *yaw, const double *offsets, int64_t n, int64_t k,
+                       double *out) {
+    const hmap_t map = {h, nx, ny, x0, y0, inv_res};
+    for (int64_t i = 0; i < n; ++i) {
+        const double c = cos(yaw[i]), s = sin(yaw[i]), bx = xy[2 * i], by = xy[2 * i + 1];
+        double *row = out + i * k;
+        for (int64_t j = 0; j < k; ++j) {
+            const double ox = offsets[2 * j], oy = offsets[2 * j + 1];
+            row[j] = (double)height_at(&map, (float)(bx + c * ox - s * oy), (float)(by + s * ox + c * oy));
+        }
+    }
 }
