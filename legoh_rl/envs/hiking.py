@@ -193,7 +193,7 @@ class HikingEnv(EnvBase):
         self.tick = np.ones(N, dtype=bool)
         self._no_worlds = np.zeros(N, dtype=bool)  # read-only all-False mask
         self._no_worlds.flags.writeable = False
-        self._obs: dict | None = None  # the last observation arrays, for partial resets
+        self._obs: dict = {}  # the last observation arrays, for partial resets
 
     def _make_specs(self) -> None:
         N, A, dev = self.cfg.num_envs, self.A, self.device
@@ -258,7 +258,7 @@ class HikingEnv(EnvBase):
         self.tick[ids] = True  # a reset world gets a fresh depth frame
         if self.camera is not None:
             self._render_depth(np.isin(np.arange(N), ids))
-        if self._obs is None or ids.size == N:
+        if not self._obs or ids.size == N:
             obs = self._full_observations()
         else:  # only the reset worlds changed since the last step: refresh their rows
             state = self.read_state(ids)
@@ -274,7 +274,7 @@ class HikingEnv(EnvBase):
         """Observations of every world from the current state (kept for the next partial reset)."""
         state = self.read_state()
         state["goal_dirs_w"] = self._goal_dirs(state["pos"])
-        self._obs = self._observations(state)
+        self._obs.update(self._observations(state))
         return self._obs
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -303,11 +303,12 @@ class HikingEnv(EnvBase):
             targets = targets + self.cfg.gait_feedforward * (self.gait_reference() - self.q_default)
         self.worlds.set_joint_targets(targets)
 
-        self.episode_step += 1
-        self.global_steps += 1
+        self.episode_step[:] += 1  # in-place array updates here and below: an env attribute assignment
+        self.global_steps += 1     # goes through nn.Module.__setattr__ (~10 us each)
         self.randomizer.push(self.episode_step % self.push_every == 0, self.rng)
         diverged = self.worlds.step()
-        self.diverged_total += int(diverged.sum())
+        if diverged.any():
+            self.diverged_total += int(diverged.sum())
 
         state = self.read_state()
         self._advance_goals(state)
@@ -330,9 +331,10 @@ class HikingEnv(EnvBase):
         if done.any():
             episode = self._finish_episodes(done, success, state)
 
-        self.tick = (self.episode_step % self.cfg.perception_every) == 0
+        np.equal(self.episode_step % self.cfg.perception_every, 0, out=self.tick)
         self._render_depth(self.tick)
-        obs = self._obs = self._observations(state)
+        obs = self._observations(state)
+        self._obs.update(obs)
         self.dq_prev[:] = state["dq"]
         self.torques_prev[:] = state["torques"]
         return self._to_td(obs, reward_terms=terms, episode=episode, info=(diverged, bad_action), reward=total,
@@ -473,7 +475,7 @@ class HikingEnv(EnvBase):
         passed = np.einsum("ij,ij->i", -to_cur, seg) > 0.0  # beyond the goal, along the next leg
         move = (reached | passed) & (self.goal_idx < last)
         self.metrics.goals_passed += (reached & (self.goal_idx < last)).astype(np.int64)
-        self.goal_idx = np.where(move, self.goal_idx + 1, self.goal_idx)
+        self.goal_idx[move] += 1
 
     def _goal_dirs(self, pos: np.ndarray, ids: np.ndarray | None = None) -> np.ndarray:
         """Unit world-frame xy directions to the next ``num_goals`` expert goals, (N, k, 2), or
@@ -486,10 +488,10 @@ class HikingEnv(EnvBase):
     def _reward_state(self, s: dict) -> RewardState:
         contact_filt = s["contact"] | self.last_contact
         first_contact = (self.feet_air_time > 0.0) & contact_filt
-        self.feet_air_time += self.dt
+        self.feet_air_time[:] += self.dt
         air_time = self.feet_air_time.copy()
-        self.feet_air_time *= ~contact_filt
-        self.last_contact = s["contact"]
+        self.feet_air_time[:] *= ~contact_filt
+        self.last_contact[:] = s["contact"]
         foot_vel_xy = (s["feet_xy"] - self.feet_xy_prev) / self.dt
         self.feet_xy_prev[:] = s["feet_xy"]
         return RewardState(
