@@ -139,3 +139,70 @@ def test_failed_build_is_reported(tmp_path, monkeypatch):
     monkeypatch.delenv("CC", raising=False)
     with pytest.raises(RuntimeError, match="no C compiler found"):
         build.build_library()
+
+
+def test_coarse_max_map_bounds_every_bilinear_cell():
+    """Block (I, J) of the coarse map is the maximum of samples [8I, 8I + 8] x [8J, 8J + 8]: hand
+    checked on a small grid, and an upper bound of the bilinear height anywhere in the block."""
+    from legoh_rl.envs.height_map import coarse_max_map
+
+    h = np.zeros((10, 19), dtype=np.float32)  # 9 cells x 18 cells: blocks (0..1) x (0..2)
+    h[8, 8] = 5.0  # the shared corner row/column of blocks (0, 0), (0, 1), (1, 0), (1, 1)
+    h[9, 18] = 2.0  # the far corner: only block (1, 2)
+    h[3, 12] = 1.0  # inside block (0, 1)
+    cm = coarse_max_map(h, 8)
+    np.testing.assert_array_equal(cm, [[5.0, 5.0, 0.0], [5.0, 5.0, 2.0]])
+    hm = _hilly_map()
+    rng = np.random.default_rng(3)
+    ij = rng.uniform(0.0, [hm.heights.shape[0] - 1, hm.heights.shape[1] - 1], size=(5000, 2))
+    xy = np.array([hm.x0, hm.y0]) + ij * hm.resolution
+    cell = np.minimum(np.floor(ij).astype(int), np.array(hm.heights.shape) - 2) // 8
+    assert (hm.numpy(xy) <= hm.coarse_max[cell[:, 0], cell[:, 1]] + 1e-6).all()
+
+
+@needs_native
+def test_coarse_skipping_changes_no_bit():
+    """Skipping the lookups of samples the coarse max map puts above the terrain gives the same
+    march and camera results, bit for bit (rays over hills, an obstacle top, and the sky)."""
+    from legoh_rl.envs.native import camera_native
+
+    hm = _hilly_map()
+    origin, dirs, t_max = _camera_rays(8, 1024, seed=4)
+    dirs[:, :100, 2] *= -1.0  # some rays go up (never descend into the terrain's band)
+    kw = dict(z_max=np.full(8, hm.heights.max()), z_min=np.full(8, hm.heights.min()), samples=12, refine=3)
+    with_map = march_ground_native(hm, origin, dirs, t_max, coarse=True, **kw)
+    without = march_ground_native(hm, origin, dirs, t_max, coarse=False, **kw)
+    assert np.isfinite(with_map).mean() > 0.5 and np.isinf(with_map).any()
+    np.testing.assert_array_equal(with_map, without)
+    ground = HeightMap(hm.heights - 0.3, (hm.x0, hm.y0), hm.resolution)
+    rng = np.random.default_rng(5)
+    cam_mat = np.stack([np.linalg.qr(rng.standard_normal((3, 3)))[0] for _ in range(8)])
+    dirs_cam = dirs[0]
+    a = camera_native(hm, ground, origin, cam_mat, dirs_cam, t_max[0], coarse=True, z_max=kw["z_max"],
+                      z_min=kw["z_min"])
+    b = camera_native(hm, ground, origin, cam_mat, dirs_cam, t_max[0], coarse=False, z_max=kw["z_max"],
+                      z_min=kw["z_min"])
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+@needs_native
+@pytest.mark.parametrize("native", [True, False])
+def test_heights_around_a_robot_match_the_rotated_points(native, monkeypatch):
+    """``numpy_around``: the heights at yaw-frame offsets equal the plain lookup at the points
+    rotated by hand (a robot facing +y sees the point 1 m ahead at +1 m in y)."""
+    hm = _hilly_map()
+    if not native:
+        monkeypatch.setenv("LEGOH_RL_NATIVE", "0")
+    xy = np.array([[3.0, 4.0], [6.0, 2.0]])
+    yaw = np.array([np.pi / 2, -0.3])
+    offsets = np.array([[1.0, 0.0], [0.0, 0.5], [-0.45, -0.75]])
+    got = hm.numpy_around(xy, yaw, offsets)
+    assert got.shape == (2, 3)
+    np.testing.assert_allclose(got[0, 0], hm.numpy(np.array([[3.0, 5.0]]))[0], atol=1e-6)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    pts = np.stack([xy[:, :1] + c * offsets[:, 0] - s * offsets[:, 1],
+                    xy[:, 1:] + s * offsets[:, 0] + c * offsets[:, 1]], axis=-1)
+    np.testing.assert_allclose(got, hm.numpy(pts.reshape(-1, 2)).reshape(2, 3), atol=1e-6)
+    with pytest.raises(ValueError, match="one yaw per robot"):
+        hm.numpy_around(xy, yaw[:1], offsets)

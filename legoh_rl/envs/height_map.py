@@ -16,7 +16,10 @@ import torch
 
 from legoh_rl.envs.native.build import load_library
 
-__all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "torch_height_fn"]
+__all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "coarse_max_map", "torch_height_fn"]
+
+#: samples per side of a block of :attr:`HeightMap.coarse_max` (the C kernel's COARSE_SHIFT = 3)
+COARSE_BLOCK = 8
 
 
 class HeightMap:
@@ -45,6 +48,7 @@ class HeightMap:
         self.image = torch.from_numpy(self.heights)[None, None]
         self.x0, self.y0 = float(origin[0]), float(origin[1])
         self.resolution = float(resolution)
+        self._coarse: np.ndarray | None = None
         self.sx = 2.0 / ((nx - 1) * resolution)
         self.sy = 2.0 / ((ny - 1) * resolution)
 
@@ -105,9 +109,34 @@ class HeightMap:
         return out
 
     @property
+    def coarse_max(self) -> np.ndarray:
+        """The coarse max map the native ray march skips open space with, (cnx, cny) float32.
+
+        Block ``(I, J)`` holds the highest of the samples ``heights[8I : 8I + 9, 8J : 8J + 9]``
+        (clipped to the grid), so it bounds every bilinear height whose cell's lower corner
+        ``(floor ix, floor iy)`` lies in the block. Computed on first use and kept.
+        """
+        if self._coarse is None:
+            self._coarse = coarse_max_map(self.heights, COARSE_BLOCK)
+        return self._coarse
+
+    @property
     def _grid_args(self) -> tuple:
         """(nx, ny, x0, y0, 1 / resolution): the native kernels' description of the grid."""
         return (*self.heights.shape, self.x0, self.y0, 1.0 / self.resolution)
+
+
+def coarse_max_map(heights: np.ndarray, block: int) -> np.ndarray:
+    """Block maxima of a (nx, ny) height grid for the bilinear cells: (cnx, cny) with
+    ``cnx = (nx - 2) // block + 1`` (likewise cny), block ``(I, J)`` the maximum of
+    ``heights[I b : I b + b + 1, J b : J b + b + 1]`` (rows and columns past the grid repeat its
+    edge), float32."""
+    h = np.asarray(heights, dtype=np.float32)
+    nx, ny = h.shape
+    cnx, cny = (nx - 2) // block + 1, (ny - 2) // block + 1
+    hp = np.pad(h, ((0, cnx * block + 1 - nx), (0, cny * block + 1 - ny)), mode="edge")
+    rows = np.maximum(hp[:-1].reshape(cnx, block, -1).max(axis=1), hp[block::block])  # (cnx, W)
+    return np.ascontiguousarray(np.maximum(rows[:, :-1].reshape(cnx, cny, block).max(axis=2), rows[:, block::block]))
 
 
 class WorldSampler:

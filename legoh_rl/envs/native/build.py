@@ -96,11 +96,11 @@ def _declare(lib: ctypes.CDLL) -> None:
                             ctypes.c_int64, ctypes.c_int)
     flt = ctypes.c_float
     lib.lh_march.restype = c_int
-    lib.lh_march.argtypes = [f32, i64, i64, flt, flt, flt, f32, f32, f32, f32, f32, f32, i64, i64,
+    lib.lh_march.argtypes = [f32, i64, i64, flt, flt, flt, f32, i64, f32, f32, f32, f32, f32, f32, i64, i64,
                              c_int, c_int, f64, c_int]
     u8 = ctypes.POINTER(ctypes.c_uint8)
     lib.lh_camera.restype = c_int
-    lib.lh_camera.argtypes = [f32, f32, i64, i64, flt, flt, flt, f32, f32, f32, f32, f32, f32, i64, i64,
+    lib.lh_camera.argtypes = [f32, f32, i64, i64, flt, flt, flt, f32, i64, f32, f32, f32, f32, f32, f32, i64, i64,
                               c_int, c_int, flt, f64, u8, c_int]
     i32, i64p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_int64)
     lib.lh_obstacle_cast.restype = c_int

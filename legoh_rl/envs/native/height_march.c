@@ -22,10 +22,20 @@
 #define MAX_SAMPLES 1024
 #define BLOCK 512 /* rays per work block; threads take blocks in turn, which balances the load */
 
+/* Coarse blocks of the optional max map: block (I, J) holds the highest height of fine samples
+ * i in [I B, I B + B], j in [J B, J B + B] (B = 1 << COARSE_SHIFT), so it bounds every bilinear
+ * value whose cell (i, j) = (floor ix, floor iy) lies in the block. */
+#define COARSE_SHIFT 3
+/* A sample is skipped only when the ray is this far above the block's maximum (m): far more than
+ * the bilinear blend's rounding, so a skipped sample is surely above the ground. */
+#define COARSE_MARGIN 1e-3f
+
 typedef struct {
     const float *h;
     int64_t nx, ny;
     float x0, y0, inv_res;
+    const float *cmax; /* coarse max map (see COARSE_SHIFT) or NULL; cny its columns */
+    int64_t cny;
 } hmap_t;
 
 /* Bilinear height at fractional cell coordinates (ix along x, iy along y); NaN in, NaN out. */
@@ -42,6 +52,19 @@ static inline float bilinear(const hmap_t *m, float ix, float iy) {
     const float a = p[0] + (p[1] - p[0]) * fy;
     const float b = p[m->ny] + (p[m->ny + 1] - p[m->ny]) * fy;
     return a + (b - a) * fx;
+}
+
+/* Whether a point at height z above fractional cell (ix, iy) is surely above the height map,
+ * from the coarse max map alone (0 when there is none or the coordinates are NaN). */
+static inline int surely_above(const hmap_t *m, float ix, float iy, float z) {
+    if (!m->cmax || ix != ix || iy != iy) return 0;
+    const float xmax = (float)(m->nx - 1), ymax = (float)(m->ny - 1);
+    if (!(ix > 0.0f)) ix = 0.0f; else if (ix > xmax) ix = xmax;
+    if (!(iy > 0.0f)) iy = 0.0f; else if (iy > ymax) iy = ymax;
+    int64_t i = (int64_t)ix, j = (int64_t)iy;
+    if (i > m->nx - 2) i = m->nx - 2;
+    if (j > m->ny - 2) j = m->ny - 2;
+    return z > m->cmax[(i >> COARSE_SHIFT) * m->cny + (j >> COARSE_SHIFT)] + COARSE_MARGIN;
 }
 
 static inline float height_at(const hmap_t *m, float x, float y) {
@@ -82,10 +105,21 @@ static inline float march_ray(const hmap_t *m, const float *o, const float *d, f
         tm = fmaxf(tm, t0);
     }
     const float span = tm - t0;
+    /* an empty bracket (a ray that never descends into the terrain's band of heights: the sky)
+     * puts every sample at t0: one evaluation gives the loop's answer */
+    const int n_samples = span > 0.0f ? samples : 1;
     float t_lo = t0, f_lo = 0.0f, t_hi = 0.0f, f_hi = 0.0f;
-    int hit = 0, first = 1;
-    for (int s = 1; s <= samples; ++s) {
+    int hit = 0, first = 1, lazy = 0;
+    for (int s = 1; s <= n_samples; ++s) {
         const float t = t0 + span * frac[s];
+        /* a sample surely above the terrain (coarse max map) needs no lookup; its value is
+         * computed below only if the next sample brackets the hit */
+        if (surely_above(m, gx + t * dgx, gy + t * dgy, oz + t * dz)) {
+            t_lo = t;
+            first = 0;
+            lazy = 1;
+            continue;
+        }
         const float f = oz + t * dz - bilinear(m, gx + t * dgx, gy + t * dgy);
         if (f <= 0.0f) {
             t_hi = t;
@@ -96,9 +130,11 @@ static inline float march_ray(const hmap_t *m, const float *o, const float *d, f
         t_lo = t;
         f_lo = f;
         first = 0;
+        lazy = 0;
     }
     if (!hit) return INFINITY;
     if (first) f_lo = oz + t0 * dz - bilinear(m, gx + t0 * dgx, gy + t0 * dgy);
+    else if (lazy) f_lo = oz + t_lo * dz - bilinear(m, gx + t_lo * dgx, gy + t_lo * dgy);
     for (int r = 0; r < refine; ++r) {
         const float t = interp(t_lo, t_hi, f_lo, f_hi);
         const float f = oz + t * dz - bilinear(m, gx + t * dgx, gy + t * dgy);
@@ -119,13 +155,16 @@ typedef struct {
     lh_range_fn fn;
     const void *ctx;
     int64_t n, block;
-    int index, threads;
+    int64_t *next; /* the next block's first item, shared: threads take blocks as they come free */
 } worker_t;
 
 static void *run_worker(void *arg) {
     const worker_t *W = (const worker_t *)arg;
-    for (int64_t b = (int64_t)W->index * W->block; b < W->n; b += (int64_t)W->threads * W->block)
+    for (;;) {
+        const int64_t b = __atomic_fetch_add(W->next, W->block, __ATOMIC_RELAXED);
+        if (b >= W->n) break;
         W->fn(W->ctx, b, b + W->block < W->n ? b + W->block : W->n);
+    }
     return NULL;
 }
 
@@ -135,27 +174,21 @@ int lh_parallel_for(lh_range_fn fn, const void *ctx, int64_t n, int64_t block, i
     if (threads < 1) threads = 1;
     if (threads > MAX_THREADS) threads = MAX_THREADS;
     if ((int64_t)threads > blocks) threads = blocks > 0 ? (int)blocks : 1;
-    worker_t workers[MAX_THREADS];
+    int64_t next = 0;
+    const worker_t worker = {fn, ctx, n, block, &next};
     pthread_t tids[MAX_THREADS];
     int started[MAX_THREADS] = {0};
     int rc = 0;
-    for (int i = 0; i < threads; ++i) {
-        workers[i].fn = fn;
-        workers[i].ctx = ctx;
-        workers[i].n = n;
-        workers[i].block = block;
-        workers[i].index = i;
-        workers[i].threads = threads;
-    }
+    /* The calling thread works too, and takes every block a late or failed thread leaves: a
+     * thread that starts slowly (its creation can cost as much as a small call's work) delays
+     * nothing. */
     for (int i = 1; i < threads; ++i) {
-        started[i] = pthread_create(&tids[i], NULL, run_worker, &workers[i]) == 0;
+        started[i] = pthread_create(&tids[i], NULL, run_worker, (void *)&worker) == 0;
         if (!started[i]) rc = -1;
     }
-    run_worker(&workers[0]);
-    for (int i = 1; i < threads; ++i) {
+    run_worker((void *)&worker);
+    for (int i = 1; i < threads; ++i)
         if (started[i]) pthread_join(tids[i], NULL);
-        else run_worker(&workers[i]);
-    }
     return rc;
 }
 
@@ -190,15 +223,16 @@ static void march_block(const void *arg, int64_t begin, int64_t end) {
 }
 
 /* Marches rays o_w + t d_wr: origin (n, 3), dirs (n, R, 3) unit, t_max (n, R); z_max, z_min (n,)
- * and t_min (n, R) may be NULL. out (n, R): distance to the hit, INFINITY for none. */
+ * and t_min (n, R) may be NULL. out (n, R): distance to the hit, INFINITY for none. cmax: the
+ * map's coarse max map (see COARSE_SHIFT; cny columns) to skip lookups, or NULL. */
 int lh_march(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
-             const float *origin, const float *dirs, const float *t_max, const float *z_max,
+             const float *cmax, int64_t cny, const float *origin, const float *dirs, const float *t_max, const float *z_max,
              const float *z_min, const float *t_min, int64_t n_worlds, int64_t rays_per_world,
              int samples, int refine, double *out, int threads) {
     if (samples < 1 || samples > MAX_SAMPLES || refine < 0) return -2;
     float frac[MAX_SAMPLES + 1];
     fill_frac(frac, samples);
-    const march_ctx_t ctx = {{h, nx, ny, x0, y0, inv_res}, origin, dirs, t_max, z_max, z_min, t_min,
+    const march_ctx_t ctx = {{h, nx, ny, x0, y0, inv_res, cmax, cny}, origin, dirs, t_max, z_max, z_min, t_min,
                              rays_per_world, samples, refine, frac, out};
     return lh_parallel_for(march_block, &ctx, n_worlds * rays_per_world, BLOCK, threads);
 }
@@ -242,16 +276,17 @@ static void camera_block(const void *arg, int64_t begin, int64_t end) {
 /* The head cameras of n worlds: pixel rays dirs_cam (R, 3) unit in the camera frame, rotated by
  * cam_mat (n, 3, 3) (row-major, columns = camera axes in the world) from cam_pos (n, 3), marched
  * against the surface map up to t_max (R,). dist (n, R): distance to the hit (INFINITY for
- * none); on_obstacle (n, R): the hit lies more than obstacle_margin above the bare ground. */
+ * none); on_obstacle (n, R): the hit lies more than obstacle_margin above the bare ground.
+ * cmax: the surface's coarse max map (cny columns) or NULL, as in lh_march. */
 int lh_camera(const float *surface, const float *ground, int64_t nx, int64_t ny, float x0, float y0,
-              float inv_res, const float *cam_pos, const float *cam_mat, const float *dirs_cam,
+              float inv_res, const float *cmax, int64_t cny, const float *cam_pos, const float *cam_mat, const float *dirs_cam,
               const float *t_max, const float *z_max, const float *z_min, int64_t n_worlds, int64_t rays,
               int samples, int refine, float obstacle_margin, double *dist, uint8_t *on_obstacle,
               int threads) {
     if (samples < 1 || samples > MAX_SAMPLES || refine < 0) return -2;
     float frac[MAX_SAMPLES + 1];
     fill_frac(frac, samples);
-    const camera_ctx_t ctx = {{surface, nx, ny, x0, y0, inv_res}, {ground, nx, ny, x0, y0, inv_res},
+    const camera_ctx_t ctx = {{surface, nx, ny, x0, y0, inv_res, cmax, cny}, {ground, nx, ny, x0, y0, inv_res, NULL, 0},
                               cam_pos, cam_mat, dirs_cam, t_max, z_max, z_min, rays, samples, refine,
                               obstacle_margin, frac, dist, on_obstacle};
     return lh_parallel_for(camera_block, &ctx, n_worlds * rays, BLOCK, threads);
@@ -261,7 +296,7 @@ int lh_camera(const float *surface, const float *ground, int64_t nx, int64_t ny,
  * the march's are; the heights come back as double. */
 void lh_heights(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
                 const double *xy, int64_t m, double *out) {
-    const hmap_t map = {h, nx, ny, x0, y0, inv_res};
+    const hmap_t map = {h, nx, ny, x0, y0, inv_res, NULL, 0};
     for (int64_t k = 0; k < m; ++k) out[k] = (double)height_at(&map, (float)xy[2 * k], (float)xy[2 * k + 1]);
 }
 
@@ -270,7 +305,7 @@ void lh_heights(const float *h, int64_t nx, int64_t ny, float x0, float y0, floa
 void lh_heights_around(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
                        const double *xy, const double *yaw, const double *offsets, int64_t n, int64_t k,
                        double *out) {
-    const hmap_t map = {h, nx, ny, x0, y0, inv_res};
+    const hmap_t map = {h, nx, ny, x0, y0, inv_res, NULL, 0};
     for (int64_t i = 0; i < n; ++i) {
         const double c = cos(yaw[i]), s = sin(yaw[i]), bx = xy[2 * i], by = xy[2 * i + 1];
         double *row = out + i * k;

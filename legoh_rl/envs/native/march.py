@@ -51,6 +51,11 @@ def _world_bounds(z_max, z_min, n: int) -> tuple[np.ndarray | None, np.ndarray |
                  for z, name in ((z_max, "z_max"), (z_min, "z_min")))
 
 
+def _coarse_args(hm: HeightMap, coarse: bool) -> tuple:
+    """(pointer, columns) of the map's coarse max map for the kernel, or (None, 0) without."""
+    return (_ptr(hm.coarse_max), hm.coarse_max.shape[1]) if coarse else (None, 0)
+
+
 def _ptr(a: np.ndarray | None):
     return None if a is None else a.ctypes.data_as(_F32)
 
@@ -66,11 +71,14 @@ def march_ground_native(
     z_min: np.ndarray | None = None,
     t_min: np.ndarray | None = None,
     threads: int = 1,
+    coarse: bool = True,
 ) -> np.ndarray:
     """First hit of rays with a height map; the arguments and result of
     :func:`legoh_rl.envs.sensors.march_ground` (origin (n, 3), dirs (n, R, 3), t_max, t_min (n, R),
     z_max, z_min (n,) -> (n, R) float64, ``inf`` for no hit), computed in C on ``threads`` threads.
-    Each ray stops at its first sample below the ground.
+    Each ray stops at its first sample below the ground. With ``coarse`` the samples that the
+    map's :attr:`~legoh_rl.envs.height_map.HeightMap.coarse_max` puts surely above the terrain
+    skip the lookup: the same result, bit for bit, faster over open space.
 
     Raises:
         ValueError: a shape does not match ``dirs`` (named in the message).
@@ -93,7 +101,7 @@ def march_ground_native(
     out = np.empty((n, r), dtype=np.float64)
     if n * r:
         lib.lh_march(_ptr(hm.heights), hm.heights.shape[0], hm.heights.shape[1], hm.x0, hm.y0,
-                     1.0 / hm.resolution, _ptr(o), _ptr(d), _ptr(tm), _ptr(zx), _ptr(zn), _ptr(tn), n, r,
+                     1.0 / hm.resolution, *_coarse_args(hm, coarse), _ptr(o), _ptr(d), _ptr(tm), _ptr(zx), _ptr(zn), _ptr(tn), n, r,
                      int(samples), int(refine), out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                      int(threads))
     return out
@@ -118,6 +126,7 @@ def camera_native(
     z_min: np.ndarray | None = None,
     obstacle_margin: float = 0.02,
     threads: int = 1,
+    coarse: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The depth camera's surface march in one native call: each world's pixel rays are rotated
     into the world, marched against ``surface`` (as :func:`march_ground_native`), and the hit is
@@ -131,6 +140,8 @@ def camera_native(
         samples, refine, z_max, z_min: as :func:`legoh_rl.envs.sensors.march_ground`.
         obstacle_margin: a hit higher than this above the bare ground is flagged, m.
         threads: threads to march on.
+        coarse: skip lookups with the surface's coarse max map (same result), as
+            :func:`march_ground_native`.
 
     Returns:
         dist (n, R) float64 distance to the surface hit (``inf`` for none) and on_obstacle (n, R)
@@ -159,7 +170,8 @@ def camera_native(
     flag = np.empty((n, r), dtype=np.uint8)
     if n * r:
         lib.lh_camera(_ptr(surface.heights), _ptr(ground.heights), surface.heights.shape[0],
-                      surface.heights.shape[1], surface.x0, surface.y0, 1.0 / surface.resolution, _ptr(pos),
+                      surface.heights.shape[1], surface.x0, surface.y0, 1.0 / surface.resolution,
+                      *_coarse_args(surface, coarse), _ptr(pos),
                       _ptr(mat), _ptr(dc), _ptr(tm), _ptr(zx), _ptr(zn), n, r, int(samples), int(refine),
                       float(obstacle_margin), dist.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                       flag.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)), int(threads))

@@ -6,8 +6,9 @@
 
 typedef void (*lh_range_fn)(const void *ctx, int64_t begin, int64_t end);
 
-/* fn over [0, n) in blocks of `block` items, taken in turn by `threads` threads. Returns 0, or -1
- * when a thread could not be started (the calling thread then runs that thread's blocks itself). */
+/* fn over [0, n) in blocks of `block` items, which `threads` threads (the caller among them) take
+ * as they come free. Returns 0, or -1 when a thread could not be started (the others then run
+ * every block; the result is the same). */
 int lh_parallel_for(lh_range_fn fn, const void *ctx, int64_t n, int64_t block, int threads);
 
 #endif
