@@ -206,3 +206,33 @@ def test_heights_around_a_robot_match_the_rotated_points(native, monkeypatch):
     np.testing.assert_allclose(got, hm.numpy(pts.reshape(-1, 2)).reshape(2, 3), atol=1e-6)
     with pytest.raises(ValueError, match="one yaw per robot"):
         hm.numpy_around(xy, yaw[:1], offsets)
+
+
+@needs_native
+def test_camera_resolves_obstacle_rays_in_the_same_call():
+    """``camera_native(caster=...)`` gives each flagged ray the nearer of the obstacle geoms and
+    the bare ground marched from the surface hit: the two-stage result (caster + march)."""
+    from legoh_rl.envs.native import camera_native
+
+    trails = trails_for(("forest",), variants=1, seed=1)
+    env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=6, mode="student", categories=("forest",), levels=(2, 3),
+                                    num_threads=1), trails=trails)
+    env.reset()
+    w, cam = env.worlds, env.camera
+    w.qpos[:, 0] += np.linspace(0.5, 6.0, 6)
+    w.batch.forward()
+    pos, mat = w.cam_xpos[:, env.built.camera_id], w.cam_xmat[:, env.built.camera_id].reshape(-1, 3, 3)
+    t_ray = cam.cfg.far / cam._axis_cos
+    kw = dict(z_max=trails.max_height_near(pos[:, :2]), z_min=trails.min_height_near(pos[:, :2]), threads=2)
+    args = (trails.height_at_t, trails.ground_height_at_t, pos, mat, cam._dirs_cam, t_ray)
+    surface, flagged = camera_native(*args, **kw)
+    fused, flagged2 = camera_native(*args, caster=cam.obstacle_caster, **kw)
+    np.testing.assert_array_equal(flagged, flagged2)
+    assert flagged.sum() > 100  # the trees are in view
+    np.testing.assert_array_equal(fused[~flagged], surface[~flagged])  # unflagged rays untouched
+    two_stage = cam._exact_on_obstacles(w.batch, pos, mat, None, t_ray, np.arange(6), flagged, surface.copy(),
+                                        trails.ground_height_at_t, kw["z_max"], kw["z_min"])
+    assert (np.isfinite(fused) == np.isfinite(two_stage)).all()
+    fin = np.isfinite(fused)
+    np.testing.assert_allclose(fused[fin], two_stage[fin], atol=1e-4)
+    assert (np.abs(fused - surface)[flagged & fin] > 1e-3).mean() > 0.5  # the exact geoms moved most flagged hits

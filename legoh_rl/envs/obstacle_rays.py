@@ -210,6 +210,14 @@ class ObstacleRayCaster:
         np.minimum.at(out, rays[ok], t[ok])
         return out
 
+    def native_geometry(self) -> tuple:
+        """The geoms in the native kernels' layout: ``(G, kind, pos, mat, size, r2, plane_start,
+        plane_count, planes)``, counts as ints and arrays as addresses (``lh_obstacle_cast``'s and
+        the fused camera's arguments; the arrays live as long as this caster)."""
+        arrays = (self._kind, self._pos_c, self._mat_c, self._size_c, self._r2, self._plane_start, self._plane_count,
+                  self._flat_planes)
+        return (self.num_geoms, *(a.ctypes.data for a in arrays))
+
     def _cast_native(self, lib, o, d, tm, out, threads: int) -> np.ndarray:
         o, d, tm = (np.ascontiguousarray(a, dtype=np.float64) for a in (o, d, tm))
         f64, i64 = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)

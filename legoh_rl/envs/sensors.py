@@ -192,10 +192,13 @@ class DepthCamera:
         vec = None  # (n, R, 3) world-frame rays, only where a path needs them all
         if self._fused(surface_fn, ground_fn):
             # 1+2 in one native call: rotate the pixel rays, march the surface map, flag obstacle hits
+            # (and, with an obstacle caster, resolve the flagged rays against the geoms in the same call)
             dist, on_obstacle = camera_native(surface_fn, ground_fn, cam_pos, cam_mat, self._dirs_cam, t_ray,
                                               samples=cfg.march_samples, refine=cfg.march_refine, z_max=z_max,
                                               z_min=z_min, obstacle_margin=OBSTACLE_MARGIN,
-                                              threads=torch.get_num_threads())
+                                              threads=torch.get_num_threads(), caster=self.obstacle_caster)
+            if self.obstacle_caster is not None:
+                on_obstacle = None  # resolved
         else:
             vec = np.matmul(self._dirs_cam, cam_mat.transpose(0, 2, 1))
             # 1) march every ray against the surface map (ground + rasterised obstacle tops)
@@ -207,7 +210,7 @@ class DepthCamera:
             hit_xyz = cam_pos[:, None, :] + np.where(hit, dist, 0.0)[..., None] * vec
             ground = self._heights(ground_fn, hit_xyz[..., :2].reshape(-1, 2))
             on_obstacle = hit & (hit_xyz[..., 2] - ground.reshape(dist.shape) > OBSTACLE_MARGIN)
-        if on_obstacle.any():
+        if on_obstacle is not None and on_obstacle.any():
             dist = self._exact_on_obstacles(batch, cam_pos, cam_mat, vec, t_ray, ids, on_obstacle, dist, ground_fn,
                                             z_max, z_min)
         depth = self._normalised(dist)

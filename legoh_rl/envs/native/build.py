@@ -25,7 +25,7 @@ __all__ = ["SOURCES", "HEADERS", "cache_dir", "compiler", "library_path", "build
            "unavailable_reason"]
 
 SOURCES = tuple(Path(__file__).with_name(name) for name in ("height_march.c", "obstacle_cast.c"))
-HEADERS = (Path(__file__).with_name("parallel.h"),)
+HEADERS = tuple(Path(__file__).with_name(name) for name in ("parallel.h", "obstacle_cast.h"))
 FLAGS = ("-O3", "-fPIC", "-shared", "-pthread", "-std=c99")
 
 _lib: ctypes.CDLL | None = None
@@ -100,8 +100,9 @@ def _declare(lib: ctypes.CDLL) -> None:
                              c_int, c_int, f64, c_int]
     u8 = ctypes.POINTER(ctypes.c_uint8)
     lib.lh_camera.restype = c_int
-    lib.lh_camera.argtypes = [f32, f32, i64, i64, flt, flt, flt, f32, i64, f32, f32, f32, f32, f32, f32, i64, i64,
-                              c_int, c_int, flt, f64, u8, c_int]
+    vp = ctypes.c_void_p  # the obstacle geometry: ObstacleRayCaster.native_geometry's arrays
+    lib.lh_camera.argtypes = [f32, f32, i64, i64, flt, flt, flt, f32, f32, i64, f32, f32, f32, f32, f32, f32, i64,
+                              i64, c_int, c_int, flt, f64, u8, i64, vp, vp, vp, vp, vp, vp, vp, vp, c_int]
     i32, i64p = ctypes.POINTER(ctypes.c_int32), ctypes.POINTER(ctypes.c_int64)
     lib.lh_obstacle_cast.restype = c_int
     lib.lh_obstacle_cast.argtypes = [i64, i32, f64, f64, f64, f64, i64p, i64p, f64, i64, f64, f64, f64, f64, c_int]

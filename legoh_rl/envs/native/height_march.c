@@ -16,6 +16,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "obstacle_cast.h"
 #include "parallel.h"
 
 #define MAX_THREADS 64
@@ -248,11 +249,45 @@ typedef struct {
     const float *frac;
     double *dist;
     uint8_t *on_obstacle;
+    const obs_ctx_t *obstacles; /* geoms to resolve flagged rays against, or NULL (flags only) */
 } camera_ctx_t;
+
+/* Flagged rays of one chunk (at most CULL consecutive rays), in the obstacle caster's layout. */
+typedef struct {
+    int64_t k[CULL], w[CULL];
+    float d[CULL][3], t_surface[CULL], t_max[CULL];
+    double o[3 * CULL], dd[3 * CULL], tm[CULL], out[CULL];
+    int n;
+} flagged_t;
+
+/* The exact distance of each flagged ray: the nearer of the obstacle geoms and the bare ground,
+ * marched from where the ray met the surface (the ground lies at or below it). */
+static void resolve_flagged(const camera_ctx_t *C, flagged_t *F, int64_t *survivors) {
+    obs_ctx_t rays = *C->obstacles;
+    rays.o = F->o;
+    rays.d = F->dd;
+    rays.tm = F->tm;
+    rays.out = F->out;
+    rays.M = F->n;
+    lh_cast_rays(&rays, 0, F->n, survivors);
+    for (int i = 0; i < F->n; ++i) {
+        const int64_t w = F->w[i];
+        const float g = march_ray(&C->ground, C->cam_pos + 3 * w, F->d[i], F->t_max[i],
+                                  C->z_max ? C->z_max[w] : NAN, C->z_min ? C->z_min[w] : NAN, F->t_surface[i],
+                                  C->samples, C->refine, C->frac);
+        C->dist[F->k[i]] = fmin(F->out[i], (double)g);
+    }
+    F->n = 0;
+}
 
 static void camera_block(const void *arg, int64_t begin, int64_t end) {
     const camera_ctx_t *C = (const camera_ctx_t *)arg;
     int64_t w = begin / C->rays, r = begin - w * C->rays;
+    flagged_t F;
+    F.n = 0;
+    /* the obstacle cull's scratch; without memory every flagged ray tests every geom (same result) */
+    int64_t *survivors = NULL;
+    if (C->obstacles && C->obstacles->G > 0) survivors = (int64_t *)malloc(sizeof(int64_t) * (size_t)C->obstacles->G);
     for (int64_t k = begin; k < end; ++k, ++r) {
         if (r == C->rays) {
             ++w;
@@ -270,25 +305,48 @@ static void camera_block(const void *arg, int64_t begin, int64_t end) {
             flag = hz - height_at(&C->ground, o[0] + t * d[0], o[1] + t * d[1]) > C->obstacle_margin;
         }
         C->on_obstacle[k] = flag;
+        if (flag && C->obstacles) {
+            const int i = F.n++;
+            F.k[i] = k;
+            F.w[i] = w;
+            F.t_surface[i] = t;
+            F.t_max[i] = C->t_max[r];
+            F.tm[i] = (double)C->t_max[r];
+            for (int a = 0; a < 3; ++a) {
+                F.d[i][a] = d[a];
+                F.o[3 * i + a] = (double)o[a];
+                F.dd[3 * i + a] = (double)d[a];
+            }
+            if (F.n == CULL) resolve_flagged(C, &F, survivors);
+        }
     }
+    if (F.n) resolve_flagged(C, &F, survivors);
+    free(survivors);
 }
 
 /* The head cameras of n worlds: pixel rays dirs_cam (R, 3) unit in the camera frame, rotated by
  * cam_mat (n, 3, 3) (row-major, columns = camera axes in the world) from cam_pos (n, 3), marched
  * against the surface map up to t_max (R,). dist (n, R): distance to the hit (INFINITY for
  * none); on_obstacle (n, R): the hit lies more than obstacle_margin above the bare ground.
- * cmax: the surface's coarse max map (cny columns) or NULL, as in lh_march. */
+ * cmax / gcmax: the surface's / ground's coarse max maps (cny columns each, one grid) or NULL,
+ * as in lh_march. With obstacle geoms (G >= 0 and kind not NULL; the arrays of lh_obstacle_cast)
+ * the flagged rays are resolved here: dist becomes the nearer of the geoms and the bare ground
+ * marched from the surface hit, as ObstacleRayCaster.cast plus lh_march would give. */
 int lh_camera(const float *surface, const float *ground, int64_t nx, int64_t ny, float x0, float y0,
-              float inv_res, const float *cmax, int64_t cny, const float *cam_pos, const float *cam_mat, const float *dirs_cam,
-              const float *t_max, const float *z_max, const float *z_min, int64_t n_worlds, int64_t rays,
-              int samples, int refine, float obstacle_margin, double *dist, uint8_t *on_obstacle,
-              int threads) {
+              float inv_res, const float *cmax, const float *gcmax, int64_t cny, const float *cam_pos,
+              const float *cam_mat, const float *dirs_cam, const float *t_max, const float *z_max,
+              const float *z_min, int64_t n_worlds, int64_t rays, int samples, int refine, float obstacle_margin,
+              double *dist, uint8_t *on_obstacle, int64_t G, const int32_t *kind, const double *pos,
+              const double *mat, const double *size, const double *r2, const int64_t *plane_start,
+              const int64_t *plane_count, const double *planes, int threads) {
     if (samples < 1 || samples > MAX_SAMPLES || refine < 0) return -2;
     float frac[MAX_SAMPLES + 1];
     fill_frac(frac, samples);
-    const camera_ctx_t ctx = {{surface, nx, ny, x0, y0, inv_res, cmax, cny}, {ground, nx, ny, x0, y0, inv_res, NULL, 0},
+    const obs_ctx_t geoms = {G, kind, pos, mat, size, r2, plane_start, plane_count, planes, NULL, NULL, NULL, NULL, 0};
+    const camera_ctx_t ctx = {{surface, nx, ny, x0, y0, inv_res, cmax, cny},
+                              {ground, nx, ny, x0, y0, inv_res, gcmax, cny},
                               cam_pos, cam_mat, dirs_cam, t_max, z_max, z_min, rays, samples, refine,
-                              obstacle_margin, frac, dist, on_obstacle};
+                              obstacle_margin, frac, dist, on_obstacle, kind ? &geoms : NULL};
     return lh_parallel_for(camera_block, &ctx, n_worlds * rays, BLOCK, threads);
 }
 

@@ -20,6 +20,7 @@ __all__ = ["march_ground_native", "camera_native", "same_grid"]
 
 if TYPE_CHECKING:  # height_map imports this package
     from legoh_rl.envs.height_map import HeightMap
+    from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 
 _F32 = ctypes.POINTER(ctypes.c_float)
 
@@ -127,6 +128,7 @@ def camera_native(
     obstacle_margin: float = 0.02,
     threads: int = 1,
     coarse: bool = True,
+    caster: ObstacleRayCaster | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The depth camera's surface march in one native call: each world's pixel rays are rotated
     into the world, marched against ``surface`` (as :func:`march_ground_native`), and the hit is
@@ -140,12 +142,17 @@ def camera_native(
         samples, refine, z_max, z_min: as :func:`legoh_rl.envs.sensors.march_ground`.
         obstacle_margin: a hit higher than this above the bare ground is flagged, m.
         threads: threads to march on.
-        coarse: skip lookups with the surface's coarse max map (same result), as
+        coarse: skip lookups with the maps' coarse max maps (same result), as
             :func:`march_ground_native`.
+        caster: the obstacle geoms (:class:`~legoh_rl.envs.obstacle_rays.ObstacleRayCaster`): the
+            flagged rays are then resolved in the same call, each to the nearer of the geoms and
+            the bare ground marched on from the surface hit (what ``caster.cast`` and
+            :func:`march_ground_native` with ``t_min`` give). Without one, ``dist`` of a flagged
+            ray is its surface hit.
 
     Returns:
-        dist (n, R) float64 distance to the surface hit (``inf`` for none) and on_obstacle (n, R)
-        bool (the hit lies on an obstacle).
+        dist (n, R) float64 distance to the hit (``inf`` for none) and on_obstacle (n, R) bool
+        (the surface hit lies on an obstacle).
 
     Raises:
         ValueError: the maps are on different grids, or a shape is wrong (named).
@@ -171,8 +178,10 @@ def camera_native(
     if n * r:
         lib.lh_camera(_ptr(surface.heights), _ptr(ground.heights), surface.heights.shape[0],
                       surface.heights.shape[1], surface.x0, surface.y0, 1.0 / surface.resolution,
-                      *_coarse_args(surface, coarse), _ptr(pos),
+                      _coarse_args(surface, coarse)[0], _coarse_args(ground, coarse)[0],
+                      surface.coarse_max.shape[1] if coarse else 0, _ptr(pos),
                       _ptr(mat), _ptr(dc), _ptr(tm), _ptr(zx), _ptr(zn), n, r, int(samples), int(refine),
                       float(obstacle_margin), dist.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
-                      flag.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)), int(threads))
+                      flag.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
+                      *(caster.native_geometry() if caster is not None else (0,) + (None,) * 8), int(threads))
     return dist, flag.view(bool)

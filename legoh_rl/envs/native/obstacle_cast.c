@@ -12,25 +12,12 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "obstacle_cast.h"
 #include "parallel.h"
 
-#define CULL 32
 #define OBS_BLOCK (16 * CULL) /* rays per thread work block */
 
 enum { KIND_BOX = 0, KIND_CYLINDER = 1, KIND_MESH = 2 };
-
-typedef struct {
-    int64_t G;
-    const int32_t *kind;        /* (G,) */
-    const double *pos, *mat;    /* (G, 3), (G, 3, 3) row-major, columns = geom axes */
-    const double *size, *r2;    /* (G, 3), (G,) squared bounding radius */
-    const int64_t *plane_start; /* (G,) first plane of a mesh in planes */
-    const int64_t *plane_count; /* (G,) */
-    const double *planes;       /* (F, 4): n . x <= h, rows (nx, ny, nz, h) in the geom frame */
-    const double *o, *d, *tm;   /* rays (M, 3), (M, 3), (M,) */
-    double *out;                /* (M,) */
-    int64_t M;
-} obs_ctx_t;
 
 /* nearest crossing at t >= 0 of the convex interval [t_lo, t_hi] */
 static inline double entry_or_exit(double t_lo, double t_hi) {
@@ -90,7 +77,7 @@ static double hit_mesh(const double *planes, int64_t count, const double *lo, co
     return entry_or_exit(t_lo, t_hi);
 }
 
-static void cast_block(const obs_ctx_t *C, int64_t begin, int64_t end, int64_t *survivors) {
+void lh_cast_rays(const obs_ctx_t *C, int64_t begin, int64_t end, int64_t *survivors) {
     double bmin[3] = {INFINITY, INFINITY, INFINITY}, bmax[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (int64_t k = begin; k < end; ++k) {
         for (int i = 0; i < 3; ++i) {
@@ -146,7 +133,7 @@ static void cast_range(const void *arg, int64_t begin, int64_t end) {
     const obs_ctx_t *C = (const obs_ctx_t *)arg;
     /* the block cull's list; without memory every ray tests every geom (slower, same result) */
     int64_t *survivors = (int64_t *)malloc(sizeof(int64_t) * (size_t)(C->G > 0 ? C->G : 1));
-    for (int64_t b = begin; b < end; b += CULL) cast_block(C, b, b + CULL < end ? b + CULL : end, survivors);
+    for (int64_t b = begin; b < end; b += CULL) lh_cast_rays(C, b, b + CULL < end ? b + CULL : end, survivors);
     free(survivors);
 }
 
