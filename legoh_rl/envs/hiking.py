@@ -303,8 +303,10 @@ class HikingEnv(EnvBase):
             targets = targets + self.cfg.gait_feedforward * (self.gait_reference() - self.q_default)
         self.worlds.set_joint_targets(targets)
 
-        self.episode_step[:] += 1  # in-place array updates here and below: an env attribute assignment
-        self.global_steps += 1     # goes through nn.Module.__setattr__ (~10 us each)
+        # per-step buffers are updated in place (here and below): assigning an env attribute goes
+        # through nn.Module.__setattr__
+        self.episode_step[:] += 1
+        self.global_steps += 1
         self.randomizer.push(self.episode_step % self.push_every == 0, self.rng)
         diverged = self.worlds.step()
         if diverged.any():

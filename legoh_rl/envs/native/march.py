@@ -102,7 +102,8 @@ def march_ground_native(
     out = np.empty((n, r), dtype=np.float64)
     if n * r:
         lib.lh_march(_ptr(hm.heights), hm.heights.shape[0], hm.heights.shape[1], hm.x0, hm.y0,
-                     1.0 / hm.resolution, *_coarse_args(hm, coarse), _ptr(o), _ptr(d), _ptr(tm), _ptr(zx), _ptr(zn), _ptr(tn), n, r,
+                     1.0 / hm.resolution, *_coarse_args(hm, coarse), _ptr(o), _ptr(d), _ptr(tm), _ptr(zx),
+                     _ptr(zn), _ptr(tn), n, r,
                      int(samples), int(refine), out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                      int(threads))
     return out
@@ -176,10 +177,10 @@ def camera_native(
     dist = np.empty((n, r), dtype=np.float64)
     flag = np.empty((n, r), dtype=np.uint8)
     if n * r:
+        (surface_cmax, cny), (ground_cmax, _) = _coarse_args(surface, coarse), _coarse_args(ground, coarse)
         lib.lh_camera(_ptr(surface.heights), _ptr(ground.heights), surface.heights.shape[0],
                       surface.heights.shape[1], surface.x0, surface.y0, 1.0 / surface.resolution,
-                      _coarse_args(surface, coarse)[0], _coarse_args(ground, coarse)[0],
-                      surface.coarse_max.shape[1] if coarse else 0, _ptr(pos),
+                      surface_cmax, ground_cmax, cny, _ptr(pos),
                       _ptr(mat), _ptr(dc), _ptr(tm), _ptr(zx), _ptr(zn), n, r, int(samples), int(refine),
                       float(obstacle_margin), dist.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                       flag.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
