@@ -71,6 +71,8 @@ def evaluate(cfg: DictConfig) -> dict:
     """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
     if cfg.checkpoint is None:
         raise ValueError("checkpoint is required: a .pt file from a recipe, or 'zero' for the PD-hold baseline")
+    if cfg.video and not float(cfg.video_seconds) > 0.0:  # checked before the evaluation, not after it
+        raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
     protocol = protocol_of(cfg)
     seeds = trail_seeds_of(cfg)
     torch.set_num_threads(1)

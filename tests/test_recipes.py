@@ -186,6 +186,19 @@ def test_exported_policy_is_slim_and_evaluates(tmp_path):
     assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 1
 
 
+def test_evaluate_refuses_a_zero_length_video_before_evaluating(tmp_path, monkeypatch):
+    called = []
+    monkeypatch.setattr(evaluate_recipe, "load_policy", lambda *a, **k: called.append(1))
+    cfg = cfg_of("evaluate", ["checkpoint=zero", f"output_dir={tmp_path}", "video_seconds=0", "logger.backend=csv"])
+    with pytest.raises(ValueError, match=r"video_seconds must be positive \(or video=false for no video\), got 0"):
+        evaluate_recipe.evaluate(cfg)
+    assert not called  # refused up front, not after the whole evaluation
+    from legoh_rl.training.evaluation import render_video
+
+    with pytest.raises(ValueError, match="video seconds must be positive, got 0"):
+        render_video(None, None, tmp_path / "v.mp4", seconds=0)
+
+
 def test_evaluate_missing_checkpoint(tmp_path):
     cfg = cfg_of("evaluate", ["checkpoint=/nonexistent.pt", f"output_dir={tmp_path}", "logger.backend=csv"])
     with pytest.raises(FileNotFoundError, match="checkpoint not found: /nonexistent.pt"):

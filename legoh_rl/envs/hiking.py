@@ -252,7 +252,7 @@ class HikingEnv(EnvBase):
         N = self.cfg.num_envs
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
-            mask = tensordict.get("_reset").reshape(N).cpu().numpy().astype(bool)
+            mask = tensordict.get("_reset").detach().cpu().numpy().reshape(N).astype(bool, copy=False)
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
         self._reset_worlds(ids)
         self.tick[ids] = True  # a reset world gets a fresh depth frame
@@ -472,7 +472,7 @@ class HikingEnv(EnvBase):
         cur = self.goals[n, self.goal_idx, :2]
         nxt = self.goals[n, np.minimum(self.goal_idx + 1, last), :2]
         to_cur = cur - state["pos"][:, :2]
-        reached = np.linalg.norm(to_cur, axis=1) < self.cfg.goal_reach_radius
+        reached = np.einsum("ij,ij->i", to_cur, to_cur) < self.cfg.goal_reach_radius**2
         seg = nxt - cur
         passed = np.einsum("ij,ij->i", -to_cur, seg) > 0.0  # beyond the goal, along the next leg
         move = (reached | passed) & (self.goal_idx < last)
@@ -485,7 +485,7 @@ class HikingEnv(EnvBase):
         n = (np.arange(self.cfg.num_envs) if ids is None else ids)[:, None]
         idx = np.minimum(self.goal_idx[n] + np.arange(self.cfg.num_goals)[None], self.num_goals[n] - 1)
         vec = self.goals[n, idx, :2] - pos[:, None, :2]
-        return vec / np.maximum(np.linalg.norm(vec, axis=-1, keepdims=True), 1e-6)
+        return vec / np.maximum(np.sqrt(np.einsum("nki,nki->nk", vec, vec))[..., None], 1e-6)
 
     def _reward_state(self, s: dict) -> RewardState:
         contact_filt = s["contact"] | self.last_contact

@@ -333,9 +333,11 @@ def compute_rewards(
         terms: name -> (N,) ``weight * term * dt``.
     """
     terms = {name: w * s.dt * REWARD_FUNCTIONS[name](s) for name, w in weights.items()}
-    zero = np.zeros(s.q.shape[0])
-    total = zero + sum((v for k, v in terms.items() if k not in AFTER_CLIP), zero)
+    before = [v for k, v in terms.items() if k not in AFTER_CLIP]
+    after = [v for k, v in terms.items() if k in AFTER_CLIP]
+    total = np.sum(before, axis=0) if before else np.zeros(s.q.shape[0])  # one pass over a (K, N) stack
     if only_positive:
         total = np.maximum(total, 0.0)
-    total = total + sum((v for k, v in terms.items() if k in AFTER_CLIP), zero)
+    if after:
+        total = total + np.sum(after, axis=0)
     return total, terms

@@ -277,6 +277,8 @@ def render_video(env, policy, path: str | Path, worlds: int = 4, seconds: float 
     """
     import warnings
 
+    if not seconds > 0.0:
+        raise ValueError(f"video seconds must be positive, got {seconds}")
     try:
         import imageio.v2 as imageio
         import mujoco
@@ -311,6 +313,9 @@ def render_video(env, policy, path: str | Path, worlds: int = 4, seconds: float 
             rows = [np.concatenate(tiles[i : i + 2], axis=1) for i in range(0, len(tiles), 2)]
             frames.append(np.concatenate(rows, axis=0))
     renderer.close()
+    if not frames:  # shorter than one frame
+        warnings.warn(f"video skipped: {seconds} s is shorter than one frame at {fps} fps", stacklevel=2)
+        return None
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     imageio.mimsave(path, frames, fps=fps, macro_block_size=1)
