@@ -2,11 +2,12 @@
 
     python benchmarks/torchrl_overhead.py [--n 64] [--steps 2000] [--repeats 3]
 
-A stand-in env with HikingEnv's specs (oracle mode, H1) whose ``_step``/``_reset`` return a
-cached output (cloned), with a partial reset on 52% of the steps as under random actions, is run
-through ``step_and_maybe_reset``: what is left is torchrl's step, ``step_mdp`` and reset merging
-(plus the clone). The same with every nested group (``reward_terms``, ``episode``, ``info``)
-flattened into root keys shows what the nesting costs.
+A stand-in env with HikingEnv's specs (oracle mode, H1) whose ``_step``/``_reset`` wrap
+prebuilt tensors in a new TensorDict each call (as ``HikingEnv._to_td`` does, without the numpy
+work), with a partial reset on 52% of the steps as under random actions, is run through
+``step_and_maybe_reset``: what is left is torchrl's step, ``step_mdp`` and reset merging. The same
+with every nested group (``reward_terms``, ``episode``, ``info``) flattened into root keys shows
+what the nesting costs.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import time
 
 import numpy as np
 import torch
+from tensordict import TensorDict
 from torchrl.data import Composite
 from torchrl.envs import EnvBase
 
@@ -45,14 +47,16 @@ class CachedOutputEnv(EnvBase):
         self.action_spec = real.action_spec.clone()
         self.reward_spec = real.reward_spec.clone()
         self.done_spec = real.done_spec.clone()
-        self._out = self.full_observation_spec.zero()
-        self._out.update(self.full_done_spec.zero())
-        self._out["reward"] = torch.zeros(n, 1)
+        out = self.full_observation_spec.zero()
+        out.update(self.full_done_spec.zero())
+        self._reset_out = out.to_dict()
+        out["reward"] = torch.zeros(n, 1)
+        self._step_out = out.to_dict()
         self._rng = np.random.default_rng(seed)
         self._share = reset_share
 
     def _step(self, tensordict):
-        out = self._out.clone()
+        out = TensorDict._new_unsafe(self._step_out, batch_size=self.batch_size)
         done = torch.zeros(self.batch_size[0], 1, dtype=torch.bool)
         if self._rng.random() < self._share:
             done[self._rng.integers(self.batch_size[0])] = True
@@ -60,9 +64,7 @@ class CachedOutputEnv(EnvBase):
         return out
 
     def _reset(self, tensordict=None, **kwargs):
-        out = self._out.clone()
-        del out["reward"]
-        return out
+        return TensorDict._new_unsafe(self._reset_out, batch_size=self.batch_size)
 
     def _set_seed(self, seed):
         self._rng = np.random.default_rng(seed)
