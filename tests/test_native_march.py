@@ -200,10 +200,9 @@ def test_heights_around_a_robot_match_the_rotated_points(native, monkeypatch):
     got = hm.numpy_around(xy, yaw, offsets)
     assert got.shape == (2, 3)
     np.testing.assert_allclose(got[0, 0], hm.numpy(np.array([[3.0, 5.0]]))[0], atol=1e-6)
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    pts = np.stack([xy[:, :1] + c * offsets[:, 0] - s * offsets[:, 1],
-                    xy[:, 1:] + s * offsets[:, 0] + c * offsets[:, 1]], axis=-1)
-    np.testing.assert_allclose(got, hm.numpy(pts.reshape(-1, 2)).reshape(2, 3), atol=1e-6)
+    c, s = np.cos(yaw[1]), np.sin(yaw[1])  # robot 1's last point by hand
+    x, y = 6.0 + c * -0.45 - s * -0.75, 2.0 + s * -0.45 + c * -0.75
+    np.testing.assert_allclose(got[1, 2], hm.numpy(np.array([[x, y]]))[0], atol=1e-6)
     with pytest.raises(ValueError, match="one yaw per robot"):
         hm.numpy_around(xy, yaw[:1], offsets)
 

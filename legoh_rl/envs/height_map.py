@@ -16,7 +16,7 @@ import torch
 
 from legoh_rl.envs.native.build import load_library
 
-__all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "coarse_max_map", "torch_height_fn"]
+__all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "coarse_max_map", "torch_height_fn", "yaw_frame_points"]
 
 #: samples per side of a block of :attr:`HeightMap.coarse_max` (the C kernel's COARSE_SHIFT = 3)
 COARSE_BLOCK = 8
@@ -99,10 +99,7 @@ class HeightMap:
         n, k = xy.shape[0], offsets.shape[0]
         lib = load_library()
         if lib is None:
-            c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-            px = xy[:, :1] + c * offsets[:, 0] - s * offsets[:, 1]
-            py = xy[:, 1:] + s * offsets[:, 0] + c * offsets[:, 1]
-            return self.numpy(np.stack([px, py], axis=-1).reshape(-1, 2)).reshape(n, k)
+            return self.numpy(yaw_frame_points(xy, yaw, offsets).reshape(-1, 2)).reshape(n, k)
         out = np.empty((n, k))
         lib.lh_heights_around(self.heights.ctypes.data, *self._grid_args, xy.ctypes.data, yaw.ctypes.data,
                               offsets.ctypes.data, n, k, out.ctypes.data)
@@ -124,6 +121,15 @@ class HeightMap:
     def _grid_args(self) -> tuple:
         """(nx, ny, x0, y0, 1 / resolution): the native kernels' description of the grid."""
         return (*self.heights.shape, self.x0, self.y0, 1.0 / self.resolution)
+
+
+def yaw_frame_points(xy: np.ndarray, yaw: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """World xy of points ``offsets`` (K, 2) (forward, left) in the yaw frames of robots at ``xy``
+    (N, 2) with headings ``yaw`` (N,): (N, K, 2)."""
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    px = xy[:, :1] + c * offsets[:, 0] - s * offsets[:, 1]
+    py = xy[:, 1:2] + s * offsets[:, 0] + c * offsets[:, 1]
+    return np.stack([px, py], axis=-1)
 
 
 def coarse_max_map(heights: np.ndarray, block: int) -> np.ndarray:

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 import torch
 
-from legoh_rl.envs.height_map import HeightMap, as_grid_sampler, torch_height_fn
+from legoh_rl.envs.height_map import HeightMap, as_grid_sampler, torch_height_fn, yaw_frame_points
 from legoh_rl.envs.native import (
     camera_native,
     load_library,
@@ -446,10 +446,7 @@ def scandots(
     if heights_around is not None:
         h = heights_around(base_pos[:, :2], yaw, offsets)
     else:
-        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        px = base_pos[:, :1] + c * offsets[:, 0] - s * offsets[:, 1]
-        py = base_pos[:, 1:2] + s * offsets[:, 0] + c * offsets[:, 1]
-        h = height_fn(np.stack([px, py], axis=-1).reshape(-1, 2)).reshape(n, k)
+        h = height_fn(yaw_frame_points(base_pos[:, :2], yaw, offsets).reshape(-1, 2)).reshape(n, k)
     ground = base_pos[:, 2:3] - base_height_target
     return np.clip(h - ground, -1.0, 1.0).astype(np.float32)
 

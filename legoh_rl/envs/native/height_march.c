@@ -227,8 +227,8 @@ static void march_block(const void *arg, int64_t begin, int64_t end) {
  * and t_min (n, R) may be NULL. out (n, R): distance to the hit, INFINITY for none. cmax: the
  * map's coarse max map (see COARSE_SHIFT; cny columns) to skip lookups, or NULL. */
 int lh_march(const float *h, int64_t nx, int64_t ny, float x0, float y0, float inv_res,
-             const float *cmax, int64_t cny, const float *origin, const float *dirs, const float *t_max, const float *z_max,
-             const float *z_min, const float *t_min, int64_t n_worlds, int64_t rays_per_world,
+             const float *cmax, int64_t cny, const float *origin, const float *dirs, const float *t_max,
+             const float *z_max, const float *z_min, const float *t_min, int64_t n_worlds, int64_t rays_per_world,
              int samples, int refine, double *out, int threads) {
     if (samples < 1 || samples > MAX_SAMPLES || refine < 0) return -2;
     float frac[MAX_SAMPLES + 1];
