@@ -27,6 +27,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from legoh_rl.envs.body_state import BodyStateReader
 from legoh_rl.envs.config import HikingEnvConfig
 from legoh_rl.envs.curriculum import Curriculum
 from legoh_rl.envs.gait import swing_joints, swing_reference
@@ -38,8 +39,6 @@ from legoh_rl.envs.rewards import RewardState, compute_rewards, reward_weights
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
 from legoh_rl.envs.sensors import (
     DepthCamera,
-    quat_to_rotmat,
-    roll_pitch_from_gravity,
     scandot_offsets,
     scandots,
     world_to_yaw_frame,
@@ -52,7 +51,6 @@ __all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VE
 ANG_VEL_SCALE = 0.25
 DOF_VEL_SCALE = 0.05
 LIN_VEL_SCALE = 2.0
-CONTACT_FORCE_THRESHOLD = 1.0  # N: a foot is in contact above this net force
 _CPU = torch.device("cpu")
 
 
@@ -138,10 +136,7 @@ class HikingEnv(EnvBase):
             caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
             self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg, obstacle_caster=caster)
         self.scandot_xy = scandot_offsets()
-        # sensordata columns of the feet's and the penalised bodies' contact forces, (2, 3) and (P, 3)
-        self._foot_force_cols = np.array([[a + 1, a + 2, a + 3] for a in self.built.foot_sensor_adr], dtype=np.int64)
-        self._pen_force_cols = np.array([[a + 1, a + 2, a + 3] for a in self.built.penalised_sensor_adr],
-                                        dtype=np.int64).reshape(-1, 3)
+        self.body = BodyStateReader(self.worlds, self.built, trails, self.robot.foot_rest_height)
         self.swing_joints = swing_joints(self.robot.leg_joints) if cfg.gait_period else None
         self.rng = np.random.default_rng(cfg.seed)
         self.global_steps = 0
@@ -423,47 +418,16 @@ class HikingEnv(EnvBase):
         """The worlds' current physical state as numpy arrays (observations and rewards start here).
 
         ``ids`` (n,) restricts it to those worlds (rows in that order); default: all N worlds.
-        Keys (N = num_envs, or n): ``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,),
-        ``lin_vel_w``/``lin_vel_b``/``ang_vel_b`` (N, 3), ``q``/``dq``/``torques`` (N, A),
-        ``contact`` (N, 2) bool, ``foot_lift`` (N, 2) m (foot height above the terrain under it,
-        0 when standing), ``base_height`` (N,) m above the terrain, ``goal_dist`` (N,) m to P_B,
-        and the rest of the reward inputs. Analysis tools (recipes/gait_stats.py) read it too.
+        Keys (N = num_envs, or n): those of :class:`~legoh_rl.envs.body_state.BodyStateReader`
+        (``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,), velocities, ``q``/``dq``/
+        ``torques`` (N, A), ``contact`` (N, 2) bool, ``foot_lift`` (N, 2) m, ``base_height`` (N,) m,
+        ``goal_dist`` (N,) m to P_B, ...) and ``gait_phase`` (N,) or None. Analysis tools
+        (recipes/gait_stats.py) read it too.
         """
-        w, b = self.worlds, self.built
-        sel = slice(None) if ids is None else ids
-        qpos, qvel = w.qpos[sel], w.qvel[sel]
-        pos = qpos[:, 0:3].copy()
-        quat = qpos[:, 3:7]
-        rot = quat_to_rotmat(quat)
-        gravity_b = -rot[:, 2, :]  # world -z in the base frame = third row of R, negated
-        roll, pitch = roll_pitch_from_gravity(gravity_b)
-        yaw = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])  # = yaw_from_quat(quat)
-        lin_vel_w = qvel[:, 0:3].copy()
-        lin_vel_b = (lin_vel_w[:, None, :] @ rot)[:, 0]  # R^T v
-        ang_vel_b = qvel[:, 3:6].copy()  # free joint: angular velocity in the body frame
-        sd = w.sensordata[sel]
-        foot_force = sd[:, self._foot_force_cols]  # (N, 2, 3)
-        pen_force = sd[:, self._pen_force_cols]  # (N, P, 3)
-        contact = np.einsum("nfi,nfi->nf", foot_force, foot_force) > CONTACT_FORCE_THRESHOLD**2
-        feet_pos = w.xpos[sel][:, b.foot_body_ids]
-        feet_xy = feet_pos[..., :2]
-        foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
-        # terrain under the base and under each foot, one lookup: (N,) then (N, 2)
-        heights = self.trails.height_at(np.concatenate([pos[:, :2], feet_xy.reshape(-1, 2)]))
-        ground, feet_ground = heights[: pos.shape[0]], heights[pos.shape[0] :].reshape(-1, 2)
-        goal_vec = self.end[sel, :2] - pos[:, :2]
+        state = self.body.read(ids, self.end)
         phase = self.gait_phase()
-        return {
-            "pos": pos, "rot": rot, "gravity_b": gravity_b, "roll": roll, "pitch": pitch, "yaw": yaw,
-            "lin_vel_w": lin_vel_w, "lin_vel_b": lin_vel_b, "ang_vel_b": ang_vel_b,
-            "q": qpos[:, b.qpos_adr].copy(), "dq": qvel[:, b.dof_adr].copy(),
-            "torques": w.actuator_force[sel][:, b.actuator_ids],
-            "foot_force": foot_force, "pen_force": pen_force, "contact": contact,
-            "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
-            "goal_vec": goal_vec, "goal_dist": np.hypot(goal_vec[:, 0], goal_vec[:, 1]),
-            "feet_xy": feet_xy.copy(), "foot_lift": feet_pos[..., 2] - feet_ground - self.robot.foot_rest_height,
-            "gait_phase": None if phase is None else phase[sel],
-        }
+        state["gait_phase"] = None if phase is None else phase[slice(None) if ids is None else ids]
+        return state
 
     def _advance_goals(self, state: dict) -> None:
         """Move each world's current expert goal on once it is within reach or passed."""

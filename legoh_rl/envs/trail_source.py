@@ -95,6 +95,13 @@ class GridTrails:
         """Whether world points lie on an edge cell, (M, 2) -> (M,) bool."""
         return self.grid.edge_at(xy)
 
+    @property
+    def edge_grid(self) -> tuple[np.ndarray, tuple[float, float], float]:
+        """What :meth:`edge_at` reads: the edge mask (nx, ny) bool, the world (x0, y0) of sample
+        (0, 0) and the sample spacing, m (a point reads its nearest sample)."""
+        tm = self.grid.map
+        return tm.edge_mask, tuple(tm.origin), tm.resolution
+
 
 def trails_for(categories, variants: int, seed: int, **grid_kwargs) -> GridTrails:
     """Build the trail grid of the given categories (all levels) and wrap it for the env."""

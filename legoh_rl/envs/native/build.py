@@ -1,5 +1,6 @@
 """Build and load the native kernels (``height_march.c``: the depth camera's ray march and bilinear
-lookups; ``obstacle_cast.c``: exact rays on obstacle geoms) with the system C compiler.
+lookups; ``obstacle_cast.c``: exact rays on obstacle geoms; ``body_state.c``: the env's per-step
+body state) with the system C compiler.
 
 The library is compiled once per source version and machine into a cache folder
 (``$LEGOH_RL_CACHE``, else ``$XDG_CACHE_HOME/legoh_rl``, else ``~/.cache/legoh_rl``) and loaded with
@@ -24,8 +25,8 @@ from pathlib import Path
 __all__ = ["SOURCES", "HEADERS", "cache_dir", "compiler", "library_path", "build_library", "load_library",
            "unavailable_reason"]
 
-SOURCES = tuple(Path(__file__).with_name(name) for name in ("height_march.c", "obstacle_cast.c"))
-HEADERS = tuple(Path(__file__).with_name(name) for name in ("parallel.h", "obstacle_cast.h"))
+SOURCES = tuple(Path(__file__).with_name(name) for name in ("height_march.c", "obstacle_cast.c", "body_state.c"))
+HEADERS = tuple(Path(__file__).with_name(name) for name in ("parallel.h", "obstacle_cast.h", "height_map.h"))
 FLAGS = ("-O3", "-fPIC", "-shared", "-pthread", "-std=c99")
 
 _lib: ctypes.CDLL | None = None
@@ -111,6 +112,8 @@ def _declare(lib: ctypes.CDLL) -> None:
     lib.lh_heights.argtypes = [ptr, i64, i64, flt, flt, flt, ptr, i64, ptr]
     lib.lh_heights_around.restype = None
     lib.lh_heights_around.argtypes = [ptr, i64, i64, flt, flt, flt, ptr, ptr, ptr, i64, i64, ptr]
+    lib.lh_body_state.restype = None  # (config struct, rows or NULL, n, end, out, flags)
+    lib.lh_body_state.argtypes = [ptr, ptr, i64, ptr, ptr, ptr]
 
 
 def _disabled() -> str | None:

@@ -16,6 +16,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 
+#include "height_map.h"
 #include "obstacle_cast.h"
 #include "parallel.h"
 
@@ -31,30 +32,6 @@
  * the bilinear blend's rounding, so a skipped sample is surely above the ground. */
 #define COARSE_MARGIN 1e-3f
 
-typedef struct {
-    const float *h;
-    int64_t nx, ny;
-    float x0, y0, inv_res;
-    const float *cmax; /* coarse max map (see COARSE_SHIFT) or NULL; cny its columns */
-    int64_t cny;
-} hmap_t;
-
-/* Bilinear height at fractional cell coordinates (ix along x, iy along y); NaN in, NaN out. */
-static inline float bilinear(const hmap_t *m, float ix, float iy) {
-    const float xmax = (float)(m->nx - 1), ymax = (float)(m->ny - 1);
-    if (ix != ix || iy != iy) return NAN;
-    if (!(ix > 0.0f)) ix = 0.0f; else if (ix > xmax) ix = xmax;
-    if (!(iy > 0.0f)) iy = 0.0f; else if (iy > ymax) iy = ymax;
-    int64_t i = (int64_t)ix, j = (int64_t)iy;
-    if (i > m->nx - 2) i = m->nx - 2;
-    if (j > m->ny - 2) j = m->ny - 2;
-    const float fx = ix - (float)i, fy = iy - (float)j;
-    const float *p = m->h + i * m->ny + j;
-    const float a = p[0] + (p[1] - p[0]) * fy;
-    const float b = p[m->ny] + (p[m->ny + 1] - p[m->ny]) * fy;
-    return a + (b - a) * fx;
-}
-
 /* Whether a point at height z above fractional cell (ix, iy) is surely above the height map,
  * from the coarse max map alone (0 when there is none or the coordinates are NaN). */
 static inline int surely_above(const hmap_t *m, float ix, float iy, float z) {
@@ -66,10 +43,6 @@ static inline int surely_above(const hmap_t *m, float ix, float iy, float z) {
     if (i > m->nx - 2) i = m->nx - 2;
     if (j > m->ny - 2) j = m->ny - 2;
     return z > m->cmax[(i >> COARSE_SHIFT) * m->cny + (j >> COARSE_SHIFT)] + COARSE_MARGIN;
-}
-
-static inline float height_at(const hmap_t *m, float x, float y) {
-    return bilinear(m, (x - m->x0) * m->inv_res, (y - m->y0) * m->inv_res);
 }
 
 static inline float interp(float t_lo, float t_hi, float f_lo, float f_hi) {
