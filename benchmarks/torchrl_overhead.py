@@ -6,8 +6,8 @@ A stand-in env with HikingEnv's specs (oracle mode, H1) whose ``_step``/``_reset
 prebuilt tensors in a new TensorDict each call (as ``HikingEnv._to_td`` does, without the numpy
 work), with a partial reset on 52% of the steps as under random actions, is run through
 ``step_and_maybe_reset``: what is left is torchrl's step, ``step_mdp`` and reset merging. The same
-with every nested group (``reward_terms``, ``episode``, ``info``) flattened into root keys shows
-what the nesting costs.
+with the nested observation groups (``episode``, ``info``) flattened into root keys shows what the
+nesting costs. (The ``reward_terms`` are reward entries: in ``"next"`` only.)
 """
 
 from __future__ import annotations
@@ -45,12 +45,12 @@ class CachedOutputEnv(EnvBase):
         obs = real.observation_spec.clone()
         self.observation_spec = Composite(_flat(obs), shape=(n,)) if flat else obs
         self.action_spec = real.action_spec.clone()
-        self.reward_spec = real.reward_spec.clone()
+        self.reward_spec = real.full_reward_spec.clone()  # reward and ("reward_terms", name)
         self.done_spec = real.done_spec.clone()
         out = self.full_observation_spec.zero()
         out.update(self.full_done_spec.zero())
         self._reset_out = out.to_dict()
-        out["reward"] = torch.zeros(n, 1)
+        out.update(self.full_reward_spec.zero())
         self._step_out = out.to_dict()
         self._rng = np.random.default_rng(seed)
         self._share = reset_share

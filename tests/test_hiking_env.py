@@ -40,6 +40,24 @@ def test_check_env_specs(robot, mode):
     assert ("depth" in env.observation_spec.keys()) == (mode != "oracle")
 
 
+def test_reward_terms_are_reward_entries_in_next_only():
+    """The weighted terms are reward-spec entries: in "next" beside the reward they sum to, not
+    carried into the next root by step_mdp, not produced by a reset."""
+    env = make(n=3, only_positive_rewards=False)  # the reward is then the plain sum of its terms
+    assert env.reward_key == "reward"
+    assert set(env.reward_keys) == {"reward", *(("reward_terms", k) for k in env.weights)}
+    assert "reward_terms" not in env.observation_spec.keys()
+    td = env.reset()
+    assert "reward_terms" not in td.keys()
+    td["action"] = torch.zeros(3, env.A)
+    stepped, root = env.step_and_maybe_reset(td)
+    terms = stepped["next", "reward_terms"]
+    assert set(terms.keys()) == set(env.weights)
+    torch.testing.assert_close(sum(terms.values()), stepped["next", "reward"])
+    assert "reward_terms" not in root.keys() and "reward" not in root.keys()
+    assert "episode" in root.keys()  # observation entries are carried
+
+
 def test_partial_reset_isolates_worlds():
     env = make(n=3)
     env.reset()

@@ -8,7 +8,8 @@ Keys (docs/observations.md has every layout and scale; docs/keys.md the contract
 
 * observations: ``proprio``, ``goal_gps``, ``waypoint_gps``, ``scandots``, ``privileged``,
   ``expert_goals``, ``perception_tick``, and ``depth`` when the camera is on;
-* ``("reward_terms", name)``: each weighted reward term of this step;
+* ``("reward_terms", name)``: each weighted reward term of this step (reward-spec entries beside
+  ``reward``, so in ``"next"`` only; :attr:`HikingEnv.reward_key` is ``"reward"``);
 * ``("episode", metric)``: the six paper metrics of episodes that end at this step (read them
   where ``done`` is True; 0, or NaN for ``time_to_reach``, elsewhere), plus ``level`` and
   ``category`` of the trail;
@@ -202,9 +203,6 @@ class HikingEnv(EnvBase):
             "privileged": Unbounded(shape=(N, P), device=dev),
             "expert_goals": Bounded(-1.0, 1.0, shape=(N, k, 2), device=dev),
             "perception_tick": Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev),
-            "reward_terms": Composite(
-                {name: Unbounded(shape=(N, 1), device=dev) for name in self.weights}, shape=(N,), device=dev
-            ),
             "episode": Composite(
                 {
                     **{name: Unbounded(shape=(N, 1), device=dev) for name in METRIC_NAMES},
@@ -229,7 +227,18 @@ class HikingEnv(EnvBase):
         self.observation_spec = Composite(obs, shape=(N,), device=dev)
         clip = self.cfg.action_clip
         self.action_spec = Bounded(-clip, clip, shape=(N, A), device=dev)
-        self.reward_spec = Unbounded(shape=(N, 1), device=dev)
+        # the weighted terms are the reward's components: reward entries, in "next" only (step_mdp
+        # does not carry them into the next root, and a reset does not produce them)
+        self.reward_spec = Composite(
+            {
+                "reward": Unbounded(shape=(N, 1), device=dev),
+                "reward_terms": Composite(
+                    {name: Unbounded(shape=(N, 1), device=dev) for name in self.weights}, shape=(N,), device=dev
+                ),
+            },
+            shape=(N,),
+            device=dev,
+        )
         self.done_spec = Composite(
             {
                 key: Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev)
@@ -240,6 +249,13 @@ class HikingEnv(EnvBase):
         )
 
     # ------------------------------------------------------------------ torchrl API
+    @property
+    def reward_key(self) -> str:
+        """The reward to optimise: ``"reward"``, (N, 1). The ``("reward_terms", name)`` entries of
+        the reward spec are its weighted components (for logging); torchrl's default would refuse
+        to pick among several reward keys."""
+        return "reward"
+
     def _set_seed(self, seed: int | None) -> None:
         self.rng = np.random.default_rng(seed)
 
@@ -261,9 +277,8 @@ class HikingEnv(EnvBase):
             for key, rows in self._observations(state, ids).items():
                 self._obs[key][ids] = rows
             obs = self._obs
-        zeros, no = np.zeros(N), np.zeros(N, bool)
-        return self._to_td(obs, reward_terms={k: zeros for k in self.weights}, episode=self._empty_episode(),
-                           info=(no, no), flags=(no, no, no))
+        no = np.zeros(N, bool)
+        return self._to_td(obs, episode=self._empty_episode(), info=(no, no), flags=(no, no, no))
 
     def _full_observations(self) -> dict:
         """Observations of every world from the current state (kept for the next partial reset)."""
@@ -334,7 +349,7 @@ class HikingEnv(EnvBase):
         self._obs.update(obs)
         self.dq_prev[:] = state["dq"]
         self.torques_prev[:] = state["torques"]
-        return self._to_td(obs, reward_terms=terms, episode=episode, info=(diverged, bad_action), reward=total,
+        return self._to_td(obs, episode=episode, info=(diverged, bad_action), reward=total, reward_terms=terms,
                            flags=(done, terminated, truncated))
 
     # ------------------------------------------------------------------ episodes
@@ -557,10 +572,10 @@ class HikingEnv(EnvBase):
         angle = 2.0 * np.pi * phase
         return [np.stack([np.sin(angle), np.cos(angle)], axis=1)]
 
-    def _to_td(self, obs: dict, reward_terms: dict, episode: dict, info: tuple, reward: np.ndarray | None = None,
-               flags: tuple | None = None) -> TensorDict:
-        """The step/reset output: observations, reward terms, episode metrics, info, and (when
-        given) the reward and the (done, terminated, truncated) flags.
+    def _to_td(self, obs: dict, episode: dict, info: tuple, flags: tuple, reward: np.ndarray | None = None,
+               reward_terms: dict | None = None) -> TensorDict:
+        """The step/reset output: observations, episode metrics, info, the (done, terminated,
+        truncated) flags and, for a step, the reward and its terms.
 
         Every value is a fresh tensor (the env keeps updating its buffers, e.g. depth and tick, in
         place). The (N,) columns of each dtype are written into one (K, N) array, one tensor whose
@@ -574,18 +589,18 @@ class HikingEnv(EnvBase):
 
         out: dict = {k: torch.from_numpy(np.array(v, dtype=bool if k == "perception_tick" else np.float32))
                      for k, v in obs.items()}
-        names = list(reward_terms)
-        floats = rows([reward_terms[k] for k in names] + [episode[k] for k in METRIC_NAMES]
+        names = [] if reward_terms is None else list(reward_terms)
+        floats = rows([episode[k] for k in METRIC_NAMES] + [reward_terms[k] for k in names]
                       + ([] if reward is None else [reward]), np.float32)
-        out["reward_terms"] = dict(zip(names, floats, strict=False))
-        out["episode"] = dict(zip(METRIC_NAMES, floats[len(names):], strict=False))
+        out["episode"] = dict(zip(METRIC_NAMES, floats, strict=False))
         out["episode"]["level"], out["episode"]["category"] = rows([episode["level"], episode["category"]], np.int64)
-        bools = rows([info[0], info[1], *(flags or ())], bool)
+        if reward_terms is not None:
+            out["reward_terms"] = dict(zip(names, floats[len(METRIC_NAMES):], strict=False))
+        bools = rows([info[0], info[1], *flags], bool)
         out["info"] = {"diverged": bools[0], "bad_action": bools[1]}
         if reward is not None:
             out["reward"] = floats[-1]
-        if flags is not None:
-            out["done"], out["terminated"], out["truncated"] = bools[2:]
+        out["done"], out["terminated"], out["truncated"] = bools[2:]
         td = TensorDict._new_unsafe(out, batch_size=self.batch_size, device=_CPU)
         return td if self.device == _CPU else td.to(self.device)
 
