@@ -58,6 +58,23 @@ def test_reward_terms_are_reward_entries_in_next_only():
     assert "episode" in root.keys()  # observation entries are carried
 
 
+def test_step_processing_equals_torchrl_full_processing():
+    """The env's lighter post-step processing gives what torchrl's gives (its reward reshaping is
+    a no-op here), and torchrl's type checks pass on the step's output."""
+    from torchrl.envs import EnvBase
+
+    env = make(n=2, mode="student")
+    td = env.reset()
+    td["action"] = 0.3 * torch.ones(2, env.A)
+    out = env._step(td)
+    fast, full = env._step_proc_data(out.clone()), EnvBase._step_proc_data(env, out.clone())
+    assert set(fast.keys(True, True)) == set(full.keys(True, True))
+    for key in full.keys(True, True):  # time_to_reach is NaN where no episode ended
+        torch.testing.assert_close(fast[key], full[key], rtol=0, atol=0, equal_nan=True)
+    env.run_type_checks = True
+    assert env.step(td)["next", "reward"].shape == (2, 1)
+
+
 def test_partial_reset_isolates_worlds():
     env = make(n=3)
     env.reset()
