@@ -22,6 +22,7 @@ from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
+from legoh_rl.envs.threads import torch_threads
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
     PPOConfig,
@@ -62,6 +63,8 @@ def validate(cfg: DictConfig) -> None:
     require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
     require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
     require_positive("checkpoint", cfg.checkpoint, "every")
+    if cfg.get("update_threads") is not None and not (isinstance(cfg.update_threads, int) and cfg.update_threads >= 1):
+        raise ValueError(f"update_threads must be a positive integer or null, got {cfg.update_threads!r}")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
 
 
@@ -134,6 +137,7 @@ def train(cfg: DictConfig, env=None) -> dict:
 
     run = RunLog(cfg, ckpt_dir, run_id, frames)
     n = cfg.env.num_envs
+    update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
     frames_per_batch = n * cfg.collector.steps_per_env
     remaining = int(cfg.collector.total_frames) - frames
     if remaining < frames_per_batch:
@@ -155,7 +159,8 @@ def train(cfg: DictConfig, env=None) -> dict:
     bar = tqdm(total=remaining, unit="frames", desc="oracle PPO")
     for data in collector:
         t_update = time.perf_counter()
-        stats = ppo_update(data, loss, gae, optim, sched, actor, cfg)
+        with torch_threads(update_threads):  # the physics threads are idle during the update
+            stats = ppo_update(data, loss, gae, optim, sched, actor, cfg)
         collector.update_policy_weights_()
         iteration += 1
         frames += data.numel()

@@ -78,10 +78,26 @@ def test_resume_as_a_new_stage_takes_the_configs_coefficients_and_levels(tmp_pat
     ("env.num_envs=0", r"env.num_envs must be a positive number, got 0"),
     ("collector.total_frames=0", r"collector.total_frames must be a positive number, got 0"),
     ("checkpoint.resume=/nonexistent/last.pt", r"no checkpoint at /nonexistent/last.pt"),
+    ("update_threads=0", r"update_threads must be a positive integer or null, got 0"),
 ])
 def test_bad_config_values_refused(override, message, tmp_path):
     with pytest.raises((ValueError, FileNotFoundError), match=message):
         oracle_ppo.train(cfg_of("oracle_ppo", TINY + [override, f"checkpoint.dir={tmp_path}"]))
+
+
+def test_ppo_update_runs_on_update_threads(tmp_path, monkeypatch):
+    """Collection keeps torch_threads; the update (physics idle) runs on update_threads."""
+    seen = []
+    real = oracle_ppo.ppo_update
+
+    def spy(*args, **kwargs):
+        seen.append(torch.get_num_threads())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(oracle_ppo, "ppo_update", spy)
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=64", "update_threads=2",
+                                                  f"checkpoint.dir={tmp_path}"]))
+    assert seen == [2, 2] and torch.get_num_threads() == 1
 
 
 def test_checkpoint_for_another_robot_refused(tmp_path):
