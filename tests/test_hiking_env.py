@@ -75,6 +75,20 @@ def test_step_processing_equals_torchrl_full_processing():
     assert env.step(td)["next", "reward"].shape == (2, 1)
 
 
+def test_reset_cells_iterate_like_a_world_by_world_set():
+    """The reset draws one tile batch per (level, category) cell; the cells come from arrays, in
+    the iteration order of a set built world by world (the random stream of recorded runs)."""
+    from legoh_rl.envs.hiking import _cells
+
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        n = int(rng.integers(1, 300))
+        levels, cats = rng.integers(0, int(rng.integers(1, 12)), n), rng.integers(0, int(rng.integers(1, 8)), n)
+        by_world = {(int(lv), int(c)) for lv, c in zip(levels, cats, strict=True)}
+        assert list(_cells(levels, cats)) == list(by_world)
+    assert _cells(np.array([2, 0, 2]), np.array([1, 3, 1])) == {(2, 1), (0, 3)}
+
+
 def test_partial_reset_isolates_worlds():
     env = make(n=3)
     env.reset()

@@ -55,6 +55,19 @@ LIN_VEL_SCALE = 2.0
 _CPU = torch.device("cpu")
 
 
+def _cells(levels: np.ndarray, categories: np.ndarray) -> set[tuple[int, int]]:
+    """The distinct (level, category) pairs of some worlds, (n,) int each, as a set.
+
+    The set is filled with the pairs in the order of their first appearance among the worlds, so
+    it iterates in the same order as a set built world by world: the tile draws, and with them
+    every recorded run, keep their random stream.
+    """
+    span = int(categories.max()) + 1 if categories.size else 1
+    codes = levels.astype(np.int64) * span + categories
+    distinct, first = np.unique(codes, return_index=True)
+    return {(int(c // span), int(c % span)) for c in distinct[np.argsort(first)]}
+
+
 class TrailSource(Protocol):
     """What the env needs of a trail grid (``legoh_rl.envs.trails.TrailGrid`` implements it).
 
@@ -367,10 +380,10 @@ class HikingEnv(EnvBase):
         if ids.size == 0:
             return
         tr, cfg, n = self.trails, self.cfg, ids.size
-        levels = self.curriculum.levels[ids]
+        levels, cats = self.curriculum.levels[ids], self.world_category[ids]
         tiles = np.empty(n, dtype=np.int64)
-        for key in {(int(lv), int(c)) for lv, c in zip(levels, self.world_category[ids], strict=True)}:
-            sel = (levels == key[0]) & (self.world_category[ids] == key[1])
+        for key in _cells(levels, cats):  # one draw per (level, category) cell, not per world
+            sel = (levels == key[0]) & (cats == key[1])
             choices = self._tiles_for(*key)
             tiles[sel] = choices[self.rng.integers(0, choices.size, size=int(sel.sum()))]  # = rng.choice, faster
         self.tile[ids] = tiles
