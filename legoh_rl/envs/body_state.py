@@ -194,7 +194,7 @@ class BodyStateReader:
             "surface": surface,
         }
         k = self._keep
-        nx, ny, x0, y0, inv_res = surface._grid_args
+        nx, ny, x0, y0, inv_res = surface.grid_args
         hmap = _HMap(surface.heights.ctypes.data, nx, ny, x0, y0, inv_res, None, 0)
         arrays = (w.qpos, w.qvel, w.sensordata, w.xpos, w.actuator_force)
         return _BodyCfg(

@@ -82,7 +82,7 @@ class HeightMap:
             return self(p).numpy().astype(np.float64)
         p = np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2)
         out = np.empty(p.shape[0])
-        lib.lh_heights(self.heights.ctypes.data, *self._grid_args, p.ctypes.data, p.shape[0], out.ctypes.data)
+        lib.lh_heights(self.heights.ctypes.data, *self.grid_args, p.ctypes.data, p.shape[0], out.ctypes.data)
         return out
 
     def numpy_around(self, xy: np.ndarray, yaw: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -101,7 +101,7 @@ class HeightMap:
         if lib is None:
             return self.numpy(yaw_frame_points(xy, yaw, offsets).reshape(-1, 2)).reshape(n, k)
         out = np.empty((n, k))
-        lib.lh_heights_around(self.heights.ctypes.data, *self._grid_args, xy.ctypes.data, yaw.ctypes.data,
+        lib.lh_heights_around(self.heights.ctypes.data, *self.grid_args, xy.ctypes.data, yaw.ctypes.data,
                               offsets.ctypes.data, n, k, out.ctypes.data)
         return out
 
@@ -118,7 +118,7 @@ class HeightMap:
         return self._coarse
 
     @property
-    def _grid_args(self) -> tuple:
+    def grid_args(self) -> tuple:
         """(nx, ny, x0, y0, 1 / resolution): the native kernels' description of the grid."""
         return (*self.heights.shape, self.x0, self.y0, 1.0 / self.resolution)
 

@@ -101,8 +101,7 @@ def march_ground_native(
     tn = None if t_min is None else _f32(t_min, (n, r), "t_min")
     out = np.empty((n, r), dtype=np.float64)
     if n * r:
-        lib.lh_march(_ptr(hm.heights), hm.heights.shape[0], hm.heights.shape[1], hm.x0, hm.y0,
-                     1.0 / hm.resolution, *_coarse_args(hm, coarse), _ptr(o), _ptr(d), _ptr(tm), _ptr(zx),
+        lib.lh_march(_ptr(hm.heights), *hm.grid_args, *_coarse_args(hm, coarse), _ptr(o), _ptr(d), _ptr(tm), _ptr(zx),
                      _ptr(zn), _ptr(tn), n, r,
                      int(samples), int(refine), out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                      int(threads))
@@ -178,9 +177,7 @@ def camera_native(
     flag = np.empty((n, r), dtype=np.uint8)
     if n * r:
         (surface_cmax, cny), (ground_cmax, _) = _coarse_args(surface, coarse), _coarse_args(ground, coarse)
-        lib.lh_camera(_ptr(surface.heights), _ptr(ground.heights), surface.heights.shape[0],
-                      surface.heights.shape[1], surface.x0, surface.y0, 1.0 / surface.resolution,
-                      surface_cmax, ground_cmax, cny, _ptr(pos),
+        lib.lh_camera(_ptr(surface.heights), _ptr(ground.heights), *surface.grid_args, surface_cmax, ground_cmax, cny, _ptr(pos),
                       _ptr(mat), _ptr(dc), _ptr(tm), _ptr(zx), _ptr(zn), n, r, int(samples), int(refine),
                       float(obstacle_margin), dist.ctypes.data_as(ctypes.POINTER(ctypes.c_double)),
                       flag.ctypes.data_as(ctypes.POINTER(ctypes.c_uint8)),
