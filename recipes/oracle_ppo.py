@@ -8,6 +8,7 @@ checkpoints are written atomically and can be resumed.
     python recipes/oracle_ppo.py                                  # CPU defaults
     python recipes/oracle_ppo.py env.robot=g1 env.num_envs=256
     python recipes/oracle_ppo.py checkpoint.resume=auto           # continue the last run
+    python recipes/oracle_ppo.py checkpoint.init=checkpoints/oracle_h1.pt   # warm start from a policy
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from legoh_rl.training.checkpoint import (
     set_rng_state,
 )
 from legoh_rl.training.run_log import RunLog
+from legoh_rl.training.schedules import check_anneal, feedforward_gain
 
 
 def ppo_config(cfg: DictConfig) -> PPOConfig:
@@ -66,6 +68,31 @@ def validate(cfg: DictConfig) -> None:
     if cfg.get("update_threads") is not None and not (isinstance(cfg.update_threads, int) and cfg.update_threads >= 1):
         raise ValueError(f"update_threads must be a positive integer or null, got {cfg.update_threads!r}")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    if cfg.checkpoint.get("init") is not None and not Path(cfg.checkpoint.init).is_file():
+        raise FileNotFoundError(f"checkpoint.init: no policy at {cfg.checkpoint.init}")
+    if check_anneal(cfg.get("feedforward_anneal")) is not None and not cfg.env.get("gait_feedforward"):
+        raise ValueError("feedforward_anneal needs env.gait_feedforward > 0 (the gain it anneals from), "
+                         f"got env.gait_feedforward={cfg.env.get('gait_feedforward')!r}")
+
+
+def set_feedforward(env, cfg: DictConfig, frames: int) -> None:
+    """The env's gait feedforward gain at ``frames`` run frames (``feedforward_anneal``; no-op without)."""
+    if cfg.get("feedforward_anneal") is not None:
+        env.set_gait_feedforward(feedforward_gain(cfg.env.gait_feedforward, frames, cfg.feedforward_anneal))
+
+
+def init_networks(networks, env, path: str) -> None:
+    """Start a fresh run from the networks of a policy file (slim export or training checkpoint)."""
+    state = load_checkpoint(path)
+    if "networks" not in state or state.get("meta", {}).get("kind") != "oracle":
+        raise ValueError(f"checkpoint.init: {path} holds no oracle networks (kind {state.get('meta', {}).get('kind')!r})")
+    check_meta(state["meta"], policy_meta(env, "oracle"), path)
+    try:
+        networks.load_state_dict(state["networks"])
+    except RuntimeError as err:
+        raise ValueError(f"checkpoint.init: {path} has other network sizes than model.layers "
+                         f"(it has {state.get('oracle_config', {}).get('actor_layers')}): {err}") from None
+    print(f"initialised from {path} (its iteration {state.get('iteration')}, {state.get('frames')} frames)")
 
 
 def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
@@ -108,11 +135,16 @@ def build(cfg: DictConfig, env=None) -> dict:
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std))
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
     parts = {"env": env, "networks": networks, "actor": actor, "loss": loss, "gae": gae, "optim": optim,
-             "sched": sched, "meta": policy_meta(env, "oracle"), "iteration": 0, "frames": 0, "run_id": None}
+             "sched": sched, "iteration": 0, "frames": 0, "run_id": None}
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
-    if path is not None:
+    if path is None:
+        set_feedforward(env, cfg, 0)
+        if cfg.checkpoint.get("init") is not None:
+            init_networks(networks, env, cfg.checkpoint.init)
+    else:
         state = load_checkpoint(path)
-        check_meta(state["meta"], parts["meta"], path)
+        set_feedforward(env, cfg, state["frames"])  # an annealed gain is part of the checkpoint's meta
+        check_meta(state["meta"], policy_meta(env, "oracle"), path)
         loss.load_state_dict(state["loss"])
         set_loss_coefficients(loss, ppo_config(cfg.ppo))  # the config's weights, not the checkpoint's
         optim.load_state_dict(state["optim"])
@@ -132,7 +164,7 @@ def train(cfg: DictConfig, env=None) -> dict:
     p = build(cfg, env)
     env, networks, actor, loss, gae, optim, sched = (p[k] for k in ("env", "networks", "actor", "loss", "gae",
                                                                     "optim", "sched"))
-    meta, iteration, frames, run_id = p["meta"], p["iteration"], p["frames"], p["run_id"]
+    iteration, frames, run_id = p["iteration"], p["frames"], p["run_id"]
     ckpt_dir = Path(cfg.checkpoint.dir)
 
     run = RunLog(cfg, ckpt_dir, run_id, frames)
@@ -149,7 +181,8 @@ def train(cfg: DictConfig, env=None) -> dict:
 
     def checkpoint() -> Path:
         return save_checkpoint(ckpt_dir / "last.pt", {
-            "meta": meta, "loss": loss.state_dict(), "actor": actor.state_dict(), "networks": networks.state_dict(),
+            "meta": policy_meta(env, "oracle"), "loss": loss.state_dict(), "actor": actor.state_dict(),
+            "networks": networks.state_dict(),
             "oracle_config": networks.cfg.__dict__, "optim": optim.state_dict(), "sched": sched.state_dict(),
             "env": env.state_dict(), "rng": rng_state(), "iteration": iteration, "frames": frames,
             "run_id": run.run_id, "config": OmegaConf.to_container(cfg, resolve=True),
@@ -166,12 +199,14 @@ def train(cfg: DictConfig, env=None) -> dict:
         frames += data.numel()
         bar.update(data.numel())
         stats["train/update_s"] = time.perf_counter() - t_update
+        stats["train/gait_feedforward"] = env.cfg.gait_feedforward  # the gain the batch was collected with
         stats = run.log(iteration, frames, data, env, stats)
         bar.set_postfix(reward=f"{stats['reward/total']:.3f}", level=f"{stats['curriculum/mean_level']:.2f}",
                         sr=f"{stats.get('episode/success', float('nan')):.0f}")
         if iteration % cfg.checkpoint.every == 0:
             checkpoint()
         summary = {"iteration": iteration, "frames": frames, **stats}
+        set_feedforward(env, cfg, frames)  # for the next batch
     bar.close()
     collector.shutdown()
     summary["checkpoint"] = str(checkpoint())

@@ -432,3 +432,26 @@ def test_gait_feedforward_adds_the_clocks_swing_to_the_pd_targets():
     q = env.read_state()["q"]
     assert (q[:, 8] - q[:, 3] > 0.05).all(), q[:, [3, 8]]
     assert nxt["proprio"].shape[-1] == plain.observation_spec["proprio"].shape[-1]
+
+
+def test_set_gait_feedforward_changes_the_pd_targets_from_the_next_step():
+    """Zero actions: the targets are the default pose plus gain x the clock's swing offsets."""
+    env = make(n=2, gait_period=0.8, gait_feedforward=1.0, **quiet())
+    env.reset()
+    act_ids = env.worlds.built.actuator_ids
+    for _ in range(10):  # into the clock's swing (phase 0.25 at step 10 of 0.02 s)
+        act(env)
+    offsets = env.gait_reference() - env.q_default
+    assert np.abs(offsets).max() > 0.1
+    env.set_gait_feedforward(0.25)
+    phase_offsets = env.gait_reference() - env.q_default
+    act(env)
+    np.testing.assert_allclose(env.worlds.ctrl[:, act_ids], env.q_default + 0.25 * phase_offsets)
+    env.set_gait_feedforward(0.0)
+    act(env)
+    np.testing.assert_allclose(env.worlds.ctrl[:, act_ids], np.broadcast_to(env.q_default, (2, env.A)))
+    with pytest.raises(ValueError, match=r"gait_feedforward must be >= 0 \(0: off\), got -1.0"):
+        env.set_gait_feedforward(-1.0)
+    no_clock = make(n=1)
+    with pytest.raises(ValueError, match=r"gait_feedforward=0.5 needs a gait clock"):
+        no_clock.set_gait_feedforward(0.5)

@@ -426,3 +426,64 @@ def test_imitation_gap_labels_the_students_own_states_with_the_teacher():
         ig.imitation_gap(student, teacher, latent="z")
     with pytest.raises(ValueError, match="needs a student checkpoint, got a oracle policy"):
         ig.imitation_gap(teacher, teacher, robots=1, seconds=0.1)
+
+
+GAIT = ["env.gait_period=0.8", "env.gait_feedforward=1.0"]
+
+
+def test_init_starts_a_fresh_run_from_a_policy_file(tmp_path):
+    from legoh_rl.training.checkpoint import export_policy
+
+    src = tmp_path / "src"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + GAIT + ["collector.total_frames=64", f"checkpoint.dir={src}"]))
+    slim = export_policy(src / "last.pt", tmp_path / "policy.pt")
+    parts = oracle_ppo.build(cfg_of("oracle_ppo", TINY + GAIT + [f"checkpoint.init={slim}",
+                                                                 f"checkpoint.dir={tmp_path / 'new'}"]))
+    saved = load_checkpoint(slim)["networks"]
+    for k, v in parts["networks"].state_dict().items():
+        assert torch.equal(v, saved[k]), k
+    assert parts["iteration"] == 0 and parts["frames"] == 0  # a new run: counters and optimiser fresh
+    assert not parts["optim"].state_dict()["state"]
+
+
+@pytest.mark.parametrize("extra,message", [
+    (["model.layers=[32,32]"], r"other network sizes than model.layers"),
+    (["env.gait_feedforward=0.5"], r"gait_feedforward: checkpoint has 1.0, this run needs 0.5"),
+])
+def test_init_from_a_policy_that_does_not_fit_is_refused(tmp_path, extra, message):
+    src = tmp_path / "src"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + GAIT + ["collector.total_frames=32", f"checkpoint.dir={src}"]))
+    cfg = cfg_of("oracle_ppo", TINY + GAIT + [f"checkpoint.init={src / 'last.pt'}", f"checkpoint.dir={tmp_path}/n"]
+                 + extra)
+    with pytest.raises(ValueError, match=message):
+        oracle_ppo.build(cfg)
+
+
+def test_init_path_missing_is_refused(tmp_path):
+    with pytest.raises(FileNotFoundError, match=r"checkpoint.init: no policy at /nope/policy.pt"):
+        oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["checkpoint.init=/nope/policy.pt", f"checkpoint.dir={tmp_path}"]))
+
+
+def test_feedforward_anneal_reaches_zero_and_resumes_on_its_gain(tmp_path):
+    """Gain 1 until 32 frames, 0 from 96: each batch is collected with the gain of the frames done
+    before it, checkpoints record the annealed gain in their meta, and a resume mid-anneal continues."""
+    ck = tmp_path / "ck"
+    anneal = ["feedforward_anneal=[32,96]", f"checkpoint.dir={ck}", "checkpoint.every=1", "checkpoint.resume=auto"]
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + GAIT + anneal + ["collector.total_frames=64"]))
+    saved = load_checkpoint(ck / "last.pt")
+    assert saved["meta"]["gait_feedforward"] == pytest.approx(0.5)  # gain at 64 frames
+    cfg = cfg_of("oracle_ppo", TINY + GAIT + anneal + ["collector.total_frames=128"])
+    parts = oracle_ppo.build(cfg)
+    assert parts["env"].cfg.gait_feedforward == pytest.approx(0.5)
+    oracle_ppo.train(cfg, env=parts["env"])
+    import plot_curves
+
+    gains = [r["train/gait_feedforward"] for r in plot_curves.load(ck / "metrics.jsonl")]
+    assert gains == pytest.approx([1.0, 1.0, 0.5, 0.0])
+    final = load_checkpoint(ck / "last.pt")["meta"]
+    assert "gait_feedforward" not in final and final["gait_period"] == 0.8  # a clock, no feedforward
+
+
+def test_feedforward_anneal_needs_a_gain(tmp_path):
+    with pytest.raises(ValueError, match=r"feedforward_anneal needs env.gait_feedforward > 0"):
+        oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["feedforward_anneal=[0,10]", f"checkpoint.dir={tmp_path}"]))

@@ -19,6 +19,7 @@ Keys (docs/observations.md has every layout and scale; docs/keys.md the contract
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Protocol
 
 import mujoco
@@ -525,6 +526,16 @@ class HikingEnv(EnvBase):
         if phase is None:
             return None
         return self.q_default + swing_reference(phase, self.swing_joints, self.A, self.cfg.gait_amplitude)
+
+    def set_gait_feedforward(self, gain: float) -> None:
+        """Set the gain of the clock's swing reference in the PD targets from the next step on
+        (``HikingEnvConfig.gait_feedforward``; annealing it to 0 leaves a policy without it).
+
+        Raises:
+            ValueError: a negative gain, or a positive one without a gait clock (names the value).
+        """
+        if float(gain) != self.cfg.gait_feedforward:
+            self.cfg = dataclasses.replace(self.cfg, gait_feedforward=float(gain))  # validated there
 
     def gait_phase(self) -> np.ndarray | None:
         """(N,) phase in [0, 1) of each world's gait clock (episode time / period), or None."""

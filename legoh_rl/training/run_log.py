@@ -9,7 +9,12 @@ from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 
 from legoh_rl.training.logging import MetricsFile, make_logger
-from legoh_rl.training.stats import episode_stats, reward_term_stats
+from legoh_rl.training.stats import (
+    curriculum_stats,
+    episode_stats,
+    reward_term_stats,
+    split_episode_stats,
+)
 
 __all__ = ["RunLog"]
 
@@ -38,6 +43,9 @@ class RunLog:
         """Add reward-term, episode, curriculum and env figures to ``stats``; log them when due."""
         stats.update(reward_term_stats(data))
         stats.update(episode_stats(data))
+        categories = tuple(env.trails.categories)
+        stats.update(split_episode_stats(data, categories))
+        stats.update(curriculum_stats(env.curriculum.levels, env.world_category, categories))
         stats.update({
             "train/frames": frames,
             "train/fps_total": (frames - self.start_frames) / (time.perf_counter() - self.start),

@@ -7,7 +7,7 @@ import math
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["episode_stats", "reward_term_stats"]
+__all__ = ["episode_stats", "reward_term_stats", "split_episode_stats", "curriculum_stats"]
 
 METRICS = ("success", "trail_completion", "traverse_rate", "mev", "ttf", "time_to_reach")
 
@@ -38,4 +38,47 @@ def reward_term_stats(data: TensorDictBase, prefix: str = "reward/") -> dict[str
     out = {f"{prefix}total": float(nxt["reward"].mean())}
     for name, value in nxt["reward_terms"].items():
         out[f"{prefix}{name}"] = float(value.mean())
+    return out
+
+
+def split_episode_stats(data: TensorDictBase, categories: tuple[str, ...], prefix: str = "episode") -> dict[str, float]:
+    """Success and trail completion of the episodes that ended in ``data``, split by trail
+    category and by level: ``{prefix}/<category>/success``, ``{prefix}/level<l>/success`` (and
+    ``/trail_completion``, ``/episodes``), for the groups with at least one ended episode.
+
+    Args:
+        data: a collected batch ([..., T]) with ``("next", "episode", ...)`` entries.
+        categories: the trail grid's category names; ``("episode", "category")`` indexes them.
+    """
+    nxt = data["next"]
+    done = nxt["done"].squeeze(-1)
+    if not bool(done.any()):
+        return {}
+    cat = nxt["episode", "category"].squeeze(-1)[done]
+    lvl = nxt["episode", "level"].squeeze(-1)[done]
+    vals = {m: nxt["episode", m].squeeze(-1)[done].float() for m in ("success", "trail_completion")}
+    out: dict[str, float] = {}
+    groups = [(name, cat == i) for i, name in enumerate(categories)]
+    groups += [(f"level{int(v)}", lvl == v) for v in torch.unique(lvl)]
+    for name, mask in groups:
+        n = int(mask.sum())
+        if n:
+            out[f"{prefix}/{name}/episodes"] = float(n)
+            for m, v in vals.items():
+                out[f"{prefix}/{name}/{m}"] = float(v[mask].mean())
+    return out
+
+
+def curriculum_stats(levels, world_category, categories: tuple[str, ...], prefix: str = "curriculum") -> dict[str, float]:
+    """Mean terrain level of the worlds of each category: ``{prefix}/<category>``.
+
+    Args:
+        levels: (N,) int, each world's curriculum level.
+        world_category: (N,) int, each world's category index into ``categories``.
+    """
+    out = {}
+    for i, name in enumerate(categories):
+        mask = world_category == i
+        if mask.any():
+            out[f"{prefix}/{name}"] = float(levels[mask].mean())
     return out
