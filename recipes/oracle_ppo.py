@@ -13,6 +13,7 @@ checkpoints are written atomically and can be resumed.
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -31,15 +32,26 @@ from legoh_rl.objectives.ppo import (
     policy_kl,
     set_loss_coefficients,
 )
-from legoh_rl.training.builders import make_env, make_oracle, policy_meta, require_positive
+from legoh_rl.training.builders import (
+    make_env,
+    make_oracle,
+    policy_meta,
+    require_count,
+    require_layers,
+    require_positive,
+)
 from legoh_rl.training.checkpoint import (
     check_meta,
     load_checkpoint,
+    load_weights,
+    require_training_state,
     resume_path,
     rng_state,
     save_checkpoint,
     set_rng_state,
 )
+from legoh_rl.training.interrupt import GracefulStop
+from legoh_rl.training.run_dir import check_run_dir, open_run_dir
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.schedules import check_anneal, feedforward_gain
 
@@ -61,13 +73,18 @@ def make_ppo(actor, critic, cfg: DictConfig):
 
 
 def validate(cfg: DictConfig) -> None:
-    require_positive("env", cfg.env, "num_envs")
-    require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
-    require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
-    require_positive("checkpoint", cfg.checkpoint, "every")
-    if cfg.get("update_threads") is not None and not (isinstance(cfg.update_threads, int) and cfg.update_threads >= 1):
-        raise ValueError(f"update_threads must be a positive integer or null, got {cfg.update_threads!r}")
+    """Check every config value before any work (each error names the setting and its value)."""
+    require_count("env", cfg.env, "num_envs")
+    require_count("collector", cfg.collector, "steps_per_env", "total_frames")
+    require_count("ppo", cfg.ppo, "num_epochs", "num_minibatches")
+    require_positive("ppo", cfg.ppo, "learning_rate")
+    require_count("checkpoint", cfg.checkpoint, "every")
+    require_count("", cfg, "torch_threads")
+    if cfg.get("update_threads") is not None:
+        require_count("", cfg, "update_threads")
+    require_layers("model.layers", cfg.model.get("layers"))
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.checkpoint.get("init") is not None and not Path(cfg.checkpoint.init).is_file():
         raise FileNotFoundError(f"checkpoint.init: no policy at {cfg.checkpoint.init}")
     if check_anneal(cfg.get("feedforward_anneal")) is not None and not cfg.env.get("gait_feedforward"):
@@ -87,11 +104,10 @@ def init_networks(networks, env, path: str) -> None:
     if "networks" not in state or state.get("meta", {}).get("kind") != "oracle":
         raise ValueError(f"checkpoint.init: {path} holds no oracle networks (kind {state.get('meta', {}).get('kind')!r})")
     check_meta(state["meta"], policy_meta(env, "oracle"), path)
-    try:
-        networks.load_state_dict(state["networks"])
-    except RuntimeError as err:
-        raise ValueError(f"checkpoint.init: {path} has other network sizes than model.layers "
-                         f"(it has {state.get('oracle_config', {}).get('actor_layers')}): {err}") from None
+    have = (state.get("oracle_config") or {}).get("actor_layers")
+    load_weights(networks, state["networks"], path, "networks",
+                 f"checkpoint.init needs model.layers={list(have) if have else '<its sizes>'} (other network sizes "
+                 f"than model.layers={list(networks.cfg.actor_layers)})")
     print(f"initialised from {path} (its iteration {state.get('iteration')}, {state.get('frames')} frames)")
 
 
@@ -130,7 +146,7 @@ def build(cfg: DictConfig, env=None) -> dict:
     torch.set_num_threads(int(cfg.torch_threads))
     torch.manual_seed(int(cfg.env.seed))
     env = env if env is not None else make_env(cfg.env, mode="oracle")
-    layers = tuple(cfg.model.layers) if cfg.model.get("layers") else None
+    layers = tuple(cfg.model.layers) if cfg.model.get("layers") is not None else None
     max_std = cfg.model.get("max_std")
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std))
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
@@ -143,9 +159,13 @@ def build(cfg: DictConfig, env=None) -> dict:
             init_networks(networks, env, cfg.checkpoint.init)
     else:
         state = load_checkpoint(path)
+        require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
         set_feedforward(env, cfg, state["frames"])  # an annealed gain is part of the checkpoint's meta
         check_meta(state["meta"], policy_meta(env, "oracle"), path)
-        loss.load_state_dict(state["loss"])
+        have = (state.get("oracle_config") or {}).get("actor_layers")
+        load_weights(loss, state["loss"], path, "networks",
+                     f"set model.layers={list(have) if have else '<its sizes>'} to resume it (this run has "
+                     f"model.layers={list(networks.cfg.actor_layers)})")
         set_loss_coefficients(loss, ppo_config(cfg.ppo))  # the config's weights, not the checkpoint's
         optim.load_state_dict(state["optim"])
         sched.load_state_dict(state["sched"])
@@ -160,7 +180,15 @@ def build(cfg: DictConfig, env=None) -> dict:
 
 
 def train(cfg: DictConfig, env=None) -> dict:
-    """Run the oracle training described by ``cfg``; returns a summary of the last iteration."""
+    """Run the oracle training described by ``cfg``; returns a summary of the last iteration
+    (with ``interrupted``: the signal number, when SIGINT/SIGTERM stopped it after a checkpoint)."""
+    validate(cfg)
+    with open_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False))), \
+            GracefulStop() as stop:
+        return _train(cfg, env, stop)
+
+
+def _train(cfg: DictConfig, env, stop: GracefulStop) -> dict:
     p = build(cfg, env)
     env, networks, actor, loss, gae, optim, sched = (p[k] for k in ("env", "networks", "actor", "loss", "gae",
                                                                     "optim", "sched"))
@@ -180,13 +208,15 @@ def train(cfg: DictConfig, env=None) -> dict:
                           auto_register_policy_transforms=False)  # the oracle is stateless
 
     def checkpoint() -> Path:
-        return save_checkpoint(ckpt_dir / "last.pt", {
+        path = save_checkpoint(ckpt_dir / "last.pt", {
             "meta": policy_meta(env, "oracle"), "loss": loss.state_dict(), "actor": actor.state_dict(),
             "networks": networks.state_dict(),
             "oracle_config": networks.cfg.__dict__, "optim": optim.state_dict(), "sched": sched.state_dict(),
             "env": env.state_dict(), "rng": rng_state(), "iteration": iteration, "frames": frames,
             "run_id": run.run_id, "config": OmegaConf.to_container(cfg, resolve=True),
         })
+        run.flush()  # the logs hold what the checkpoint covers
+        return path
 
     summary: dict = {}
     bar = tqdm(total=remaining, unit="frames", desc="oracle PPO")
@@ -207,6 +237,9 @@ def train(cfg: DictConfig, env=None) -> dict:
             checkpoint()
         summary = {"iteration": iteration, "frames": frames, **stats}
         set_feedforward(env, cfg, frames)  # for the next batch
+        if stop.signum is not None:
+            summary["interrupted"] = stop.signum
+            break
     bar.close()
     collector.shutdown()
     summary["checkpoint"] = str(checkpoint())
@@ -218,6 +251,8 @@ def train(cfg: DictConfig, env=None) -> dict:
 def main(cfg: DictConfig) -> None:
     summary = train(cfg)
     print(f"done: {summary.get('iteration')} iterations, {summary.get('frames')} frames; checkpoint {summary.get('checkpoint')}")
+    if summary.get("interrupted"):  # a stage script must not go on to its next stage
+        sys.exit(128 + int(summary["interrupted"]))
 
 
 if __name__ == "__main__":

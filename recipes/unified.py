@@ -19,6 +19,8 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
 
 from __future__ import annotations
 
+import hashlib
+import sys
 from pathlib import Path
 
 import hydra
@@ -31,10 +33,13 @@ from tqdm import tqdm
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
-from legoh_rl.training.builders import gait_kwargs, make_env, policy_meta, require_positive
+from legoh_rl.training.builders import gait_kwargs, make_env, policy_meta, require_count, require_positive
 from legoh_rl.training.checkpoint import (
+    CheckpointError,
     check_meta,
     load_checkpoint,
+    load_weights,
+    require_training_state,
     resume_path,
     rng_state,
     save_checkpoint,
@@ -47,7 +52,9 @@ from legoh_rl.training.distill import (
     dagger_beta,
     student_pass,
 )
+from legoh_rl.training.interrupt import GracefulStop
 from legoh_rl.training.locomotion_replay import LocomotionReplay
+from legoh_rl.training.run_dir import check_run_dir, open_run_dir
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.student import make_student, student_env
 
@@ -61,11 +68,12 @@ def validate(cfg: DictConfig) -> None:
         raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
     if not Path(cfg.teacher).is_file():
         raise FileNotFoundError(f"teacher: no checkpoint at {cfg.teacher}")
-    require_positive("env", cfg.env, "num_envs")
-    require_positive("collector", cfg.collector, "steps_per_env", "total_frames")
-    require_positive("ppo", cfg.ppo, "num_epochs", "num_minibatches", "learning_rate")
-    require_positive("checkpoint", cfg.checkpoint, "every")
-    require_positive("", cfg, "dagger_epochs")
+    require_count("env", cfg.env, "num_envs")
+    require_count("collector", cfg.collector, "steps_per_env", "total_frames")
+    require_count("ppo", cfg.ppo, "num_epochs", "num_minibatches")
+    require_positive("ppo", cfg.ppo, "learning_rate")
+    require_count("checkpoint", cfg.checkpoint, "every")
+    require_count("", cfg, "dagger_epochs", "torch_threads")
     decay = cfg.get("dagger_decay_iters")
     if decay is not None and not 0 < decay <= cfg.dagger_iters:
         raise ValueError(f"dagger_decay_iters must lie in (0, dagger_iters={cfg.dagger_iters}], got {decay!r}")
@@ -73,9 +81,32 @@ def validate(cfg: DictConfig) -> None:
     if not int(capacity) >= 0:
         raise ValueError(f"dagger_replay.capacity must be >= 0 (0: off), got {capacity!r}")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
                          f"({cfg.env.num_envs}): minibatches split the worlds")
+
+
+def file_digest(path: str | Path) -> str:
+    """SHA-256 of a file (identifies the teacher a student was distilled from)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def check_teacher(state: dict, cfg: DictConfig, digest: str, path) -> None:
+    """Refuse to resume a student with another teacher than it was distilled from, unless
+    ``allow_new_teacher`` (a new stage under a new teacher, on purpose).
+
+    Raises:
+        CheckpointError: names both teachers and the switch.
+    """
+    if cfg.get("allow_new_teacher", False):
+        return
+    same = (state["teacher_sha256"] == digest if "teacher_sha256" in state  # older checkpoints: the path
+            else Path(state.get("teacher", "")).resolve() == Path(cfg.teacher).resolve())
+    if not same:
+        raise CheckpointError(f"{path} was distilled from teacher {state.get('teacher')!r}, this run names "
+                              f"{cfg.teacher!r} (other weights): pass teacher={state.get('teacher')} to continue, "
+                              "or allow_new_teacher=true to go on under the new teacher")
 
 
 def make_losses(student, critic, num_actions: int, cfg: DictConfig):
@@ -119,16 +150,20 @@ def build(cfg: DictConfig) -> dict:
     p = dict(replay=replay, teacher=teacher, base=base, env=env, student=student, critic=critic, critic_nets=critic_nets, ppo=ppo,
              gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim, sched=sched, vae_optim=vae_optim, meta=meta,
              iteration=0, frames=0, run_id=None)
+    p["teacher_sha256"] = file_digest(cfg.teacher)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is not None:
         state = load_checkpoint(path)
+        require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
         check_meta(state["meta"], meta, path)
+        check_teacher(state, cfg, p["teacher_sha256"], path)
+        hint = "student.perception, student.preset and the teacher must be the ones it was trained with"
+        load_weights(student.perception, state["perception"], path, "perception weights", hint)
+        load_weights(student.actor, state["actor"], path, "locomotion weights", hint)
+        load_weights(critic_nets, state["critic"], path, "critic weights", hint)
+        load_weights(vae, state["vae"], path, "masked-VAE weights", hint)
         for key in ("optim", "sched", "vae_optim"):
             p[key].load_state_dict(state[key])
-        student.perception.load_state_dict(state["perception"])
-        student.actor.load_state_dict(state["actor"])
-        critic_nets.load_state_dict(state["critic"])
-        vae.load_state_dict(state["vae"])
         base.load_state_dict(state["env"])
         set_rng_state(state["rng"])
         p.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
@@ -210,7 +245,15 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
 
 
 def train(cfg: DictConfig) -> dict:
-    """Run the unified training described by ``cfg``; returns a summary of the last iteration."""
+    """Run the unified training described by ``cfg``; returns a summary of the last iteration
+    (with ``interrupted``: the signal number, when SIGINT/SIGTERM stopped it after a checkpoint)."""
+    validate(cfg)
+    with open_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False))), \
+            GracefulStop() as stop:
+        return _train(cfg, stop)
+
+
+def _train(cfg: DictConfig, stop: GracefulStop) -> dict:
     p = build(cfg)
     base, env, student = p["base"], p["env"], p["student"]
     iteration, frames = p["iteration"], p["frames"]
@@ -228,13 +271,16 @@ def train(cfg: DictConfig) -> dict:
                           exploration_type=ExplorationType.RANDOM)
 
     def checkpoint() -> Path:
-        return save_checkpoint(ckpt_dir / "last.pt", {
+        path = save_checkpoint(ckpt_dir / "last.pt", {
             "meta": p["meta"], "perception": student.perception.state_dict(), "actor": student.actor.state_dict(),
             "critic": p["critic_nets"].state_dict(), "vae": p["vae"].state_dict(), "optim": p["optim"].state_dict(),
             "sched": p["sched"].state_dict(), "vae_optim": p["vae_optim"].state_dict(), "env": base.state_dict(),
             "rng": rng_state(), "iteration": iteration, "frames": frames, "run_id": run.run_id,
-            "teacher": str(cfg.teacher), "config": OmegaConf.to_container(cfg, resolve=True),
+            "teacher": str(cfg.teacher), "teacher_sha256": p["teacher_sha256"],
+            "config": OmegaConf.to_container(cfg, resolve=True),
         })
+        run.flush()  # the logs hold what the checkpoint covers
+        return path
 
     summary: dict = {}
     bar = tqdm(total=remaining, unit="frames", desc=f"unified ({cfg.student.perception})")
@@ -254,6 +300,9 @@ def train(cfg: DictConfig) -> dict:
         if iteration % cfg.checkpoint.every == 0:
             checkpoint()
         summary = {"iteration": iteration, "frames": frames, **stats}
+        if stop.signum is not None:
+            summary["interrupted"] = stop.signum
+            break
     bar.close()
     collector.shutdown()
     summary["checkpoint"] = str(checkpoint())
@@ -266,6 +315,8 @@ def main(cfg: DictConfig) -> None:
     summary = train(cfg)
     print(f"done: {summary.get('iteration')} iterations, {summary.get('frames')} frames; "
           f"checkpoint {summary.get('checkpoint')}")
+    if summary.get("interrupted"):  # a stage script must not go on to its next stage
+        sys.exit(128 + int(summary["interrupted"]))
 
 
 if __name__ == "__main__":

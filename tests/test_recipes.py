@@ -75,10 +75,10 @@ def test_resume_as_a_new_stage_takes_the_configs_coefficients_and_levels(tmp_pat
 @pytest.mark.parametrize("override,message", [
     ("env.robot=atlas", r"unknown robot 'atlas'"),
     ("env.categories=[swamp]", r"unknown trail category 'swamp'"),
-    ("env.num_envs=0", r"env.num_envs must be a positive number, got 0"),
-    ("collector.total_frames=0", r"collector.total_frames must be a positive number, got 0"),
+    ("env.num_envs=0", r"env.num_envs must be a positive integer, got 0"),
+    ("collector.total_frames=0", r"collector.total_frames must be a positive integer, got 0"),
     ("checkpoint.resume=/nonexistent/last.pt", r"no checkpoint at /nonexistent/last.pt"),
-    ("update_threads=0", r"update_threads must be a positive integer or null, got 0"),
+    ("update_threads=0", r"update_threads must be a positive integer, got 0"),
 ])
 def test_bad_config_values_refused(override, message, tmp_path):
     with pytest.raises((ValueError, FileNotFoundError), match=message):

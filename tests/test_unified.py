@@ -123,7 +123,7 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
 
 
 def test_dagger_epochs_must_be_positive(teacher, tmp_path):
-    with pytest.raises(ValueError, match="^dagger_epochs must be a positive number, got 0$"):
+    with pytest.raises(ValueError, match="^dagger_epochs must be a positive integer, got 0$"):
         unified.build(tiny(teacher, tmp_path, "dagger_epochs=0"))
 
 

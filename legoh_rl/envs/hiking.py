@@ -313,12 +313,15 @@ class HikingEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         N, A = self.cfg.num_envs, self.A
-        action = tensordict.get("action")
+        action = tensordict.get("action", None)
+        if action is None:
+            raise KeyError(f"HikingEnv.step needs an 'action' entry of shape {(N, A)}; the tensordict has "
+                           f"{sorted(str(k) for k in tensordict.keys())}")
         if action.shape != (N, A):
             raise ValueError(f"action must have shape {(N, A)} (num_envs, num_actions), got {tuple(action.shape)}")
         if not action.dtype.is_floating_point:
             raise TypeError(f"action must be a floating-point tensor, got dtype {action.dtype}")
-        a = action.detach().cpu().numpy().astype(np.float64)
+        a = action.detach().to("cpu", torch.float64).numpy()  # any float dtype (bfloat16 has no numpy twin)
         bad_action = self._no_worlds
         if not np.isfinite(a.sum()):  # documented: rows with NaN/inf are replaced by zeros and counted
             bad_action = ~np.isfinite(a).all(axis=1)
@@ -670,6 +673,7 @@ class HikingEnv(EnvBase):
             "rng": self.rng.bit_generator.state,
             "global_steps": self.global_steps,
             "diverged_total": self.diverged_total,
+            "bad_action_total": self.bad_action_total,
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -678,6 +682,7 @@ class HikingEnv(EnvBase):
         self.rng.bit_generator.state = state["rng"]
         self.global_steps = int(state["global_steps"])
         self.diverged_total = int(state["diverged_total"])
+        self.bad_action_total = int(state.get("bad_action_total", 0))  # absent in older checkpoints
 
 
 def _default_trails(cfg: HikingEnvConfig) -> TrailSource:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.envs.curriculum import CurriculumConfig
@@ -12,7 +12,8 @@ from legoh_rl.envs.trail_source import validate_categories
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
 
-__all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "gait_kwargs", "require_positive"]
+__all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "gait_kwargs", "require_positive",
+           "require_count", "require_layers"]
 
 
 def require_positive(section: str, cfg: Mapping, *names: str) -> None:
@@ -22,6 +23,26 @@ def require_positive(section: str, cfg: Mapping, *names: str) -> None:
         if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
             where = f"{section}.{name}" if section else name
             raise ValueError(f"{where} must be a positive number, got {value!r}")
+
+
+def require_count(section: str, cfg: Mapping, *names: str) -> None:
+    """Refuse counts that are not positive integers (2.5, 0, "4"), naming ``section.name`` and the value."""
+    for name in names:
+        value = cfg[name]
+        if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+            where = f"{section}.{name}" if section else name
+            raise ValueError(f"{where} must be a positive integer, got {value!r}")
+
+
+def require_layers(name: str, layers) -> None:
+    """Refuse MLP widths other than null or a non-empty list of positive integers."""
+    if layers is None:
+        return
+    ok = isinstance(layers, Sequence) and not isinstance(layers, str) and len(layers) > 0 and all(
+        isinstance(w, int) and not isinstance(w, bool) and w > 0 for w in layers)
+    if not ok:
+        raise ValueError(f"{name} must be a non-empty list of positive integers (or null for the defaults), "
+                         f"got {list(layers) if isinstance(layers, Sequence) else layers!r}")
 
 
 def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:

@@ -22,7 +22,12 @@ import torch
 
 __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
+    "CheckpointError", "require_training_state", "load_weights",
 ]
+
+
+class CheckpointError(ValueError):
+    """A file that is not a usable checkpoint for what was asked (the message names the file)."""
 
 
 def rng_state() -> dict:
@@ -61,11 +66,51 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 
     Raises:
         FileNotFoundError: no file at ``path`` (the message names it).
+        CheckpointError: the file is empty, truncated or not a checkpoint (names it).
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
-    return torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as err:  # EOFError, UnpicklingError, zip errors, ...: all mean the same to a user
+        size = path.stat().st_size
+        raise CheckpointError(f"{path} ({size} bytes) is not a readable checkpoint ({type(err).__name__}: {err}); "
+                              "it may be empty or cut short: point to another file, or delete it") from None
+    if not isinstance(state, dict) or "meta" not in state:
+        raise CheckpointError(f"{path} is not a legoh-rl checkpoint (no 'meta' block)")
+    return state
+
+
+def require_training_state(state: dict, path: str | os.PathLike, keys: tuple[str, ...]) -> None:
+    """Refuse to resume from a file without the training state ``keys`` (a slim policy export).
+
+    Raises:
+        CheckpointError: names the file, the missing keys and what to use instead.
+    """
+    missing = [k for k in keys if k not in state]
+    if missing:
+        raise CheckpointError(f"{path} holds no training state (missing {missing}): it is a policy export, which "
+                              "cannot be resumed. Resume from a run's last.pt, or start a new run from its weights "
+                              f"with checkpoint.init={path}")
+
+
+def load_weights(module: torch.nn.Module, weights: dict, path: str | os.PathLike, what: str, hint: str) -> None:
+    """``module.load_state_dict(weights)`` with an error that names the file and the config to fix.
+
+    Raises:
+        CheckpointError: the shapes or names differ (``what`` names the part, ``hint`` the setting).
+    """
+    own = module.state_dict()
+    bad = [f"{k}: checkpoint {tuple(v.shape)}, this run {tuple(own[k].shape)}" for k, v in weights.items()
+           if k in own and torch.is_tensor(v) and tuple(v.shape) != tuple(own[k].shape)]
+    missing = sorted(set(own) - set(weights))
+    unexpected = sorted(set(weights) - set(own))
+    if bad or missing or unexpected:
+        parts = ([f"size mismatch {'; '.join(bad[:2])}"] if bad else []) + (
+            [f"missing {missing[:3]}"] if missing else []) + ([f"unexpected {unexpected[:3]}"] if unexpected else [])
+        raise CheckpointError(f"{path}: its {what} do not fit this run's ({'; '.join(parts)}); {hint}")
+    module.load_state_dict(weights)
 
 
 def check_meta(meta: dict, expected: dict, path: str | os.PathLike = "checkpoint") -> None:

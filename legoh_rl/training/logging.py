@@ -7,7 +7,7 @@ import warnings
 
 from torchrl.record.loggers import CSVLogger, Logger
 
-__all__ = ["make_logger", "MetricsFile"]
+__all__ = ["make_logger", "MetricsFile", "trim_csv_logs"]
 
 
 def make_logger(
@@ -68,12 +68,29 @@ class MetricsFile:
             self._drop_after(int(resume_step))
 
     def _drop_after(self, step: int) -> None:
+        """Keep the rows up to ``step``; a torn last line (a kill mid-write) is dropped too.
+
+        Raises:
+            ValueError: a line other than the last is not JSON (names the file and line).
+        """
         import json
 
         with open(self.path) as f:
-            lines = [line for line in f if line.strip()]
-        keep = [line for line in lines if json.loads(line).get("step", 0) <= step]
-        if len(keep) == len(lines):
+            lines = f.readlines()
+        keep = []
+        for i, line in enumerate(lines):
+            if not line.strip():
+                continue
+            try:
+                row = json.loads(line)
+            except json.JSONDecodeError as err:
+                if i == len(lines) - 1:  # cut short by a kill: the row is written again
+                    continue
+                raise ValueError(f"{self.path}, line {i + 1}, is not a JSON row ({err}); repair or remove that "
+                                 "line, then resume") from None
+            if row.get("step", 0) <= step:
+                keep.append(line if line.endswith("\n") else line + "\n")
+        if keep == lines:
             return
         tmp = self.path + ".tmp"
         with open(tmp, "w") as f:
@@ -91,3 +108,32 @@ class MetricsFile:
             row[k] = v if math.isfinite(v) else None
         with open(self.path, "a") as f:
             f.write(json.dumps(row) + "\n")
+
+
+def trim_csv_logs(log_dir: str | os.PathLike, step: int) -> int:
+    """Drop the rows past ``step`` (and torn lines) from torchrl ``CSVLogger`` files under ``log_dir``.
+
+    A resumed run writes those steps again, so each step stays in each file once. Returns the
+    number of rows dropped.
+    """
+    from pathlib import Path
+
+    dropped = 0
+    for path in Path(log_dir).rglob("scalars/**/*.csv"):
+        lines = path.read_text().splitlines(keepends=True)
+        keep = []
+        for line in lines:
+            parts = line.rstrip("\n").split(",")
+            try:
+                ok = line.endswith("\n") and len(parts) == 2 and float(parts[0]) <= step
+                float(parts[1])
+            except ValueError:
+                ok = False
+            if ok:
+                keep.append(line)
+        if len(keep) != len(lines):
+            dropped += len(lines) - len(keep)
+            tmp = path.with_name(path.name + ".tmp")
+            tmp.write_text("".join(keep))
+            os.replace(tmp, path)
+    return dropped

@@ -8,7 +8,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 
-from legoh_rl.training.logging import MetricsFile, make_logger
+from legoh_rl.training.logging import MetricsFile, make_logger, trim_csv_logs
 from legoh_rl.training.stats import (
     curriculum_stats,
     episode_stats,
@@ -21,6 +21,11 @@ __all__ = ["RunLog"]
 
 class RunLog:
     """The logger (wandb offline / CSV) and ``metrics.jsonl`` of one training run.
+
+    Rows are held back until :meth:`flush`, which the recipes call right after each checkpoint:
+    the logs then hold exactly the steps a checkpoint covers, so a killed and resumed run logs
+    each step once (wandb cannot take back a step; the files are also trimmed on resume for a
+    kill between the checkpoint and the flush).
 
     Args:
         cfg: the recipe config (its ``logger`` section; recorded as the run's config).
@@ -35,12 +40,15 @@ class RunLog:
                                   run_id, OmegaConf.to_container(cfg, resolve=True))
         self.run_id = getattr(getattr(self.logger, "experiment", None), "id", run_id)
         self.metrics = MetricsFile(run_dir / "metrics.jsonl", resume_step=start_frames if start_frames else None)
+        if start_frames:
+            trim_csv_logs(run_dir / "logs", start_frames)
+        self.pending: list[tuple[int, dict]] = []
         self.every = int(lcfg.log_every)
         self.start_frames = start_frames
         self.start = time.perf_counter()
 
     def log(self, iteration: int, frames: int, data: TensorDictBase, env, stats: dict) -> dict:
-        """Add reward-term, episode, curriculum and env figures to ``stats``; log them when due."""
+        """Add reward-term, episode, curriculum and env figures to ``stats``; queue them when due."""
         stats.update(reward_term_stats(data))
         stats.update(episode_stats(data))
         categories = tuple(env.trails.categories)
@@ -54,13 +62,21 @@ class RunLog:
             "env/bad_action_total": env.bad_action_total,
         })
         if iteration % self.every == 0:
-            for key, value in stats.items():
-                self.logger.log_scalar(key, value, step=frames)
-            self.metrics.write(frames, stats)
+            self.pending.append((frames, dict(stats)))
         return stats
 
+    def flush(self) -> None:
+        """Write the queued rows (one logger call each) to the logger and ``metrics.jsonl``."""
+        for frames, stats in self.pending:
+            self.logger.log_metrics(stats, step=frames)
+            self.metrics.write(frames, stats)
+        self.pending.clear()
+        for f in getattr(getattr(self.logger, "experiment", None), "files", {}).values():  # CSVLogger's open files
+            f.flush()
+
     def close(self) -> None:
-        """Finish the wandb run (writes its offline files)."""
+        """Flush, then finish the wandb run (writes its offline files)."""
+        self.flush()
         exp = getattr(self.logger, "experiment", None)
         if exp is not None and hasattr(exp, "finish"):
             exp.finish()
