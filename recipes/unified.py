@@ -33,7 +33,13 @@ from tqdm import tqdm
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
-from legoh_rl.training.builders import gait_kwargs, make_env, policy_meta, require_count, require_positive
+from legoh_rl.training.builders import (
+    gait_kwargs,
+    make_env,
+    policy_meta,
+    require_count,
+    require_positive,
+)
 from legoh_rl.training.checkpoint import (
     CheckpointError,
     check_meta,
