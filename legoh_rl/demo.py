@@ -45,6 +45,7 @@ def main() -> None:
         "env.robot=h1", "env.num_envs=64", "env.categories=[randommix]", "env.variants=2",
         "collector.steps_per_env=24", "collector.total_frames=30720", f"checkpoint.dir={train_dir}",
         "checkpoint.every=5", "logger.exp_name=demo_oracle_h1",
+        "checkpoint.overwrite=true",  # a demo starts over each time (the last run is moved aside)
     ]))
     trained = Path(summary["checkpoint"])
     print(f"\ntrained {summary['iteration']} PPO iterations ({summary['frames']} env steps): "
