@@ -10,6 +10,8 @@ dropped, since the next stage resumed from an earlier checkpoint) and the stage 
 marked. ``--smooth k`` overlays a k-iteration running mean on the raw curves; ``--panels gait``
 plots the gait signals (goal-velocity tracking, air time, the gait-clock terms) instead of the
 main ones, ``--panels student`` the imitation losses and episode metrics of a unified run.
+``--panels trails`` plots a whole-benchmark run per category and level (curriculum, success,
+trail completion; grouped success smoothed by episode counts) and the gait feedforward gain.
 ``--compare`` overlays the run directories as separate runs instead, one colour each.
 """
 
@@ -48,7 +50,18 @@ STUDENT_PANELS = [
     ("episode/trail_completion", "trail completion (%)"),
     ("episode/ttf", "time to fall (s)"),
 ]
-PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS, "student": STUDENT_PANELS}
+CATEGORIES = ("randommix", "ditch", "hurdle", "gap", "forest")
+LEVELS = tuple(f"level{lv}" for lv in range(5))
+#: whole-benchmark training: a panel may hold several keys (one line each, labelled by its group)
+TRAIL_PANELS = [
+    ([f"curriculum/{c}" for c in CATEGORIES], "mean terrain level per category"),
+    ([f"episode/{c}/success" for c in CATEGORIES], "success per category (%)"),
+    ([f"episode/{lv}/success" for lv in LEVELS], "success per level (%)"),
+    ([f"episode/{c}/trail_completion" for c in CATEGORIES], "trail completion per category (%)"),
+    ("train/gait_feedforward", "gait feedforward gain"),
+    ("reward/total", "reward per step"),
+]
+PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS, "student": STUDENT_PANELS, "trails": TRAIL_PANELS}
 
 
 def load(path: Path) -> list[dict]:
@@ -81,26 +94,53 @@ def running_mean(ys: list[float], k: int) -> list[float]:
     return out
 
 
+def weighted_running_mean(ys: list[float], ws: list[float], k: int) -> list[float]:
+    """Mean of the last ``k`` values weighted by ``ws`` (episode counts) at each point."""
+    out = []
+    for i in range(len(ys)):
+        lo = max(0, i - k + 1)
+        w = sum(ws[lo : i + 1])
+        out.append(sum(y * v for y, v in zip(ys[lo : i + 1], ws[lo : i + 1], strict=True)) / w if w else float("nan"))
+    return out
+
+
+def _series(run: list[dict], key: str, smooth: int) -> tuple[list, list, list | None]:
+    """Steps, raw values and (when ``smooth`` > 1) their running mean of ``key``; a per-group
+    episode metric (``episode/<group>/<metric>``) is averaged weighted by its group's episodes."""
+    pts = [(r["step"], r[key], r.get(key.rsplit("/", 1)[0] + "/episodes", 1.0) or 0.0) for r in run
+           if r.get(key) is not None and r[key] == r[key]]
+    if not pts:
+        return [], [], None
+    xs, ys, ws = (list(v) for v in zip(*pts, strict=True))
+    if smooth <= 1:
+        return xs, ys, None
+    grouped = key.startswith("episode/") and key.count("/") == 2
+    return xs, ys, weighted_running_mean(ys, ws, smooth) if grouped else running_mean(ys, smooth)
+
+
 def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_starts: list[float] = (),
-         smooth: int = 1, panels: list[tuple[str, str]] = PANELS) -> Path:
-    """Six panels (``panels``: (metrics key, title) pairs) of training signals against env steps.
+         smooth: int = 1, panels: list[tuple] = PANELS) -> Path:
+    """Six panels (``panels``: (metrics key or list of keys, title) pairs) of training signals
+    against env steps.
 
     ``rows``: one run's rows, or ``{label: rows}`` for several runs overlaid (one colour each,
-    with a legend)."""
+    with a legend). A panel with several keys draws one line per key (one run only)."""
     runs = rows if isinstance(rows, dict) else {"": rows}
     fig, axes = plt.subplots(2, 3, figsize=(12, 6))
-    for ax, (key, label) in zip(axes.ravel(), panels, strict=True):
-        for i, (name, run) in enumerate(runs.items()):
-            pts = [(r["step"], r[key]) for r in run if r.get(key) is not None and r[key] == r[key]]
-            if not pts:
+    for ax, (keys, label) in zip(axes.ravel(), panels, strict=True):
+        lines = ([(name, run, keys) for name, run in runs.items()] if isinstance(keys, str)
+                 else [(key.split("/")[-2] if key.count("/") == 2 else key.split("/")[-1], next(iter(runs.values())), key)
+                       for key in keys])
+        for i, (name, run, key) in enumerate(lines):
+            xs, ys, mean = _series(run, key, smooth)
+            if not xs:
                 continue
-            xs, ys = zip(*pts, strict=True)
-            ax.plot(xs, ys, lw=1, alpha=0.35 if smooth > 1 else 1.0, color=f"C{i}",
-                    label=None if smooth > 1 or not name else name)
-            if smooth > 1:
-                ax.plot(xs, running_mean(list(ys), smooth), lw=1.5, color=f"C{i}", label=name or None)
-        if len(runs) > 1:
-            ax.legend(fontsize=8)
+            ax.plot(xs, ys, lw=1, alpha=0.25 if mean is not None else 1.0, color=f"C{i}",
+                    label=None if mean is not None or not name else name)
+            if mean is not None:
+                ax.plot(xs, mean, lw=1.5, color=f"C{i}", label=name or None)
+        if len(lines) > 1:
+            ax.legend(fontsize=7)
         for x in stage_starts:
             ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
         ax.set_title(label)

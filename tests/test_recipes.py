@@ -487,3 +487,17 @@ def test_feedforward_anneal_reaches_zero_and_resumes_on_its_gain(tmp_path):
 def test_feedforward_anneal_needs_a_gain(tmp_path):
     with pytest.raises(ValueError, match=r"feedforward_anneal needs env.gait_feedforward > 0"):
         oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["feedforward_anneal=[0,10]", f"checkpoint.dir={tmp_path}"]))
+
+
+def test_trail_panels_weight_grouped_success_by_episodes(tmp_path):
+    import plot_curves
+
+    # two iterations: gap 100% of 1 episode, then 0% of 3 -> 25% over both, not the plain mean 50%
+    assert plot_curves.weighted_running_mean([100.0, 0.0], [1.0, 3.0], 2) == [100.0, 25.0]
+    assert math.isnan(plot_curves.weighted_running_mean([50.0, 10.0], [0.0, 0.0], 2)[1])  # no episodes: undefined
+    rows = [{"step": 32 * (i + 1), "episode/gap/success": float(100 * (i % 2)), "episode/gap/episodes": 1.0 + i,
+             "curriculum/gap": 0.1 * i, "train/gait_feedforward": 1.0, "reward/total": 0.1} for i in range(6)]
+    _, _, mean = plot_curves._series(rows, "episode/gap/success", 2)
+    assert mean[1] == pytest.approx(100 * 2 / 3)  # (0 x 1 + 100 x 2) / 3
+    out = plot_curves.plot(rows, tmp_path / "trails.png", "t", smooth=2, panels=plot_curves.PANEL_SETS["trails"])
+    assert out.stat().st_size > 1000
