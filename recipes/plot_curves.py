@@ -131,15 +131,17 @@ def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_
         lines = ([(name, run, keys) for name, run in runs.items()] if isinstance(keys, str)
                  else [(key.split("/")[-2] if key.count("/") == 2 else key.split("/")[-1], next(iter(runs.values())), key)
                        for key in keys])
+        drawn = 0
         for i, (name, run, key) in enumerate(lines):
             xs, ys, mean = _series(run, key, smooth)
             if not xs:
                 continue
+            drawn += 1
             ax.plot(xs, ys, lw=1, alpha=0.25 if mean is not None else 1.0, color=f"C{i}",
                     label=None if mean is not None or not name else name)
             if mean is not None:
                 ax.plot(xs, mean, lw=1.5, color=f"C{i}", label=name or None)
-        if len(lines) > 1:
+        if len(lines) > 1 and drawn:
             ax.legend(fontsize=7)
         for x in stage_starts:
             ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
