@@ -32,11 +32,13 @@ from omegaconf import DictConfig, OmegaConf  # noqa: E402
 from legoh_rl.training.evaluation import (  # noqa: E402
     EvalProtocol,
     aggregate,
+    cell_table,
     markdown_table,
     plot_trajectories,
     render_video,
     run_protocol,
     write_csv,
+    write_episodes,
 )
 from legoh_rl.training.logging import make_logger  # noqa: E402
 from legoh_rl.training.policies import load_policy  # noqa: E402
@@ -80,6 +82,8 @@ def evaluate(cfg: DictConfig) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     episodes = []
     for i, seed in enumerate(seeds):  # trail set i: runs i * runs .. (i + 1) * runs - 1
+        print(f"trail set {i + 1}/{len(seeds)} (seed {seed}): {protocol.num_worlds} robots x {protocol.runs} run(s)",
+              flush=True)
         env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
                                         seed=seed, num_threads=cfg.num_threads)
         part = run_protocol(env, policy, replace(protocol, seed=seed))
@@ -94,6 +98,9 @@ def evaluate(cfg: DictConfig) -> dict:
     level_table = markdown_table(aggregate(result.episodes, by="level"))
     (out_dir / "table_levels.md").write_text(level_table + "\n")
     csv_path = write_csv(rows, out_dir / "table.csv")
+    cells = cell_table(result.episodes)
+    (out_dir / "table_cells.md").write_text(cells + "\n")
+    write_episodes(result.episodes, out_dir / "episodes.csv")
     plot = plot_trajectories(env, result, out_dir / "trajectories.png")
     video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
     print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
@@ -101,6 +108,7 @@ def evaluate(cfg: DictConfig) -> dict:
           f"x {len(seeds)} trail sets, seeds {seeds})\n")
     print(table)
     print("\nby level:\n" + level_table)
+    print("\nsuccess per category and level:\n" + cells)
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(out_dir / "logs"), cfg.logger.project,
                          cfg.logger.online, config=OmegaConf.to_container(cfg, resolve=True))
     for m, (mean, _) in rows["overall"].items():

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # A G1 oracle from scratch in three resumed stages: the H1 schedule (recipes/oracle_h1_stages.sh)
-# condensed with what the H1 stages taught (RESULTS.md, runs 4-9): the action std capped at 0.5
+# condensed with what the H1 stages taught (docs/history/results-sessions-1-12.md, runs 4-9): the action std capped at 0.5
 # and entropy 0.001 from the start, then levels 0-1 in equal shares. ~78 min on 2 CPU cores,
-# 9.83M env steps, seed 0 (RESULTS.md, "G1 oracle"). Committed as checkpoints/oracle_g1.pt.
+# 9.83M env steps, seed 0 (docs/history/results-sessions-1-12.md, "G1 oracle"). Committed as checkpoints/oracle_g1.pt.
 #
 #   bash recipes/oracle_g1_stages.sh [output root, default outputs/oracle_g1_stages]
 set -euo pipefail

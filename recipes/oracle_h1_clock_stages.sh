@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs 12 and 13 (RESULTS.md): the schedule that taught H1 to walk (recipes/oracle_h1_stages.sh,
+# Runs 12 and 13 (docs/history/results-sessions-1-12.md): the schedule that taught H1 to walk (recipes/oracle_h1_stages.sh,
 # runs 4-9: entropy bonus 0.01 and an uncapped action std while it learns to walk) with a 0.8 s
 # gait clock in the observation (env.gait_period) and only positive gait terms from the first
 # step: feet whose contacts follow the clock (gait_contact, 2) and legs that follow its swing
@@ -22,12 +22,12 @@
 #   mkdir -p outputs/oracle_h1_run14 && ln -s ../oracle_h1_feedforward/stage1 ../oracle_h1_feedforward/stage2 outputs/oracle_h1_run14/
 #   FEEDFORWARD=1 STAGE3_CURRICULUM=1 FROM_STAGE=3 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_h1_run14
 #
-# ROBOT (default h1) is env.robot: ROBOT=g1 runs the same schedule on G1 (G1 run 2 in RESULTS.md):
+# ROBOT (default h1) is env.robot: ROBOT=g1 runs the same schedule on G1 (G1 run 2 in docs/history/results-sessions-1-12.md):
 #   ROBOT=g1 FEEDFORWARD=1 STAGE3_CURRICULUM=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_g1_run2
 #
 # AMPLITUDE (default 0.25) is env.gait_amplitude, the swing reference's fold in rad. The feedforward
 # alone lifts H1's foot 5.4 cm at 0.25 and G1's 4.3 cm; G1 run 3 tries 0.45 (10.3 cm) to reach level 1
-# (G1 run 3 in RESULTS.md):
+# (G1 run 3 in docs/history/results-sessions-1-12.md):
 #   ROBOT=g1 AMPLITUDE=0.45 FEEDFORWARD=1 STAGE3_CURRICULUM=1 bash recipes/oracle_h1_clock_stages.sh outputs/oracle_g1_run3
 set -euo pipefail
 cd "$(dirname "$0")/.."

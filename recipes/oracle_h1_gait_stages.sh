@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# An H1 oracle from scratch with a gait clock (RESULTS.md, run 11): the G1 schedule
+# An H1 oracle from scratch with a gait clock (docs/history/results-sessions-1-12.md, run 11): the G1 schedule
 # (recipes/oracle_g1_stages.sh) plus, from the first step, a 0.8 s gait clock in the observation
 # (env.gait_period), a reward for feet whose contacts follow it (gait_contact), a swing-foot
 # clearance target (feet_clearance) and a slip penalty (feet_slip); from stage 2 on, a reward for
@@ -21,7 +21,7 @@ COMMON=(env.num_envs=256 env.categories=[randommix] env.variants=4 model.layers=
 # contact pattern (weight 2) and penalises low swings (-100) and slipping feet. From stage 2 on the
 # legs are also rewarded for following the clock's swing reference (gait_joint_ref, 8) and the
 # clearance penalty is -20: with the contact term alone (at 2 or 5) the stage-1 policy kept
-# standing (RESULTS.md, run 11).
+# standing (docs/history/results-sessions-1-12.md, run 11).
 GAIT1=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.feet_clearance=-100.0
        +env.reward_overrides.feet_slip=-1.0)
 GAIT=(+env.reward_overrides.gait_contact=2.0 +env.reward_overrides.gait_joint_ref=8.0

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The H1 oracle committed as checkpoints/oracle_h1.pt, trained from scratch in six stages
-# (RESULTS.md runs 4-9). Each stage resumes the previous stage's checkpoint (networks, optimiser,
+# (docs/history/results-sessions-1-12.md runs 4-9). Each stage resumes the previous stage's checkpoint (networks, optimiser,
 # rng, env state) under new settings and stops at the env-step count where the next one took
 # over. About 99 min of training on 2 CPU cores, 14.99M env steps, seed 0.
 #

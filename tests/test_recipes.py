@@ -353,7 +353,7 @@ def test_route_following_of_a_standing_robot_and_of_the_committed_oracle():
 def test_route_following_can_give_the_student_the_expert_goal():
     """--goal-source expert replaces the committed student's predicted goal by the expert one: it
     then keeps closer to the route by its sixth second (its own prediction, which follows P_B,
-    leads it off; RESULTS.md); the oracle has no goal to replace."""
+    leads it off; docs/history/results-sessions-1-12.md); the oracle has no goal to replace."""
     import route_following as rf
 
     student = str(RECIPES.parent / "checkpoints" / "student_h1.pt")
@@ -501,3 +501,19 @@ def test_trail_panels_weight_grouped_success_by_episodes(tmp_path):
     assert mean[1] == pytest.approx(100 * 2 / 3)  # (0 x 1 + 100 x 2) / 3
     out = plot_curves.plot(rows, tmp_path / "trails.png", "t", smooth=2, panels=plot_curves.PANEL_SETS["trails"])
     assert out.stat().st_size > 1000
+
+
+def test_cell_table_and_episode_csv_hand_values(tmp_path):
+    from legoh_rl.training.evaluation import cell_table, write_episodes
+
+    base = {"trail_completion": 0.0, "traverse_rate": 0.0, "mev": 0.0, "ttf": 1.0, "time_to_reach": math.nan}
+    eps = [{**base, "run": r, "category": c, "level": lv, "success": s} for r, c, lv, s in (
+        (0, "gap", 0, 100.0), (0, "gap", 0, 0.0), (1, "gap", 0, 100.0), (0, "gap", 2, 0.0), (1, "gap", 2, 0.0),
+        (0, "ditch", 0, 100.0), (1, "ditch", 0, 100.0))]
+    table = cell_table(eps).splitlines()
+    assert table[0] == "| success | level 0 | level 2 | all |"
+    # gap level 0: run 0 50, run 1 100 -> 75 +- 25; all of gap: run 0 33.3, run 1 50 -> 41.7 +- 8.3
+    assert table[2] == "| gap | 75.0 ± 25.0 | 0.0 ± 0.0 | 41.7 ± 8.3 |"
+    assert table[3] == "| ditch | 100.0 ± 0.0 | - | 100.0 ± 0.0 |"
+    rows = (tmp_path / "e.csv").read_text().splitlines() if write_episodes(eps, tmp_path / "e.csv") else []
+    assert len(rows) == 8 and rows[0].startswith("trail_completion,")

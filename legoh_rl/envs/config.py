@@ -52,7 +52,7 @@ class HikingEnvConfig:
         gait_feedforward: gain of the swing reference added to the PD targets (0: off). With 1,
             ``q* = q_default + swing_reference(phi) + action_scale * a``: the clock steps the legs
             by itself and the policy's action is a residual on that gait. Not in the paper: a
-            structural prior for small sample budgets (RESULTS.md, run 13).
+            structural prior for small sample budgets (docs/history/results-sessions-1-12.md, run 13).
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast

@@ -27,7 +27,9 @@ __all__ = [
     "run_protocol",
     "aggregate",
     "markdown_table",
+    "cell_table",
     "write_csv",
+    "write_episodes",
     "plot_trajectories",
     "render_video",
     "METRIC_LABELS",
@@ -199,6 +201,38 @@ def aggregate(episodes: list[dict], by: str = "category") -> dict[str, dict[str,
             finite = [v for v in per_run if not math.isnan(v)]
             rows[g][m] = (float(np.mean(finite)), float(np.std(finite))) if finite else (math.nan, math.nan)
     return rows
+
+
+def cell_table(episodes: list[dict], metric: str = "success") -> str:
+    """``metric`` per (category, level) cell as a markdown table (rows = categories, columns =
+    levels and "all"), each cell the mean +- std over runs of the run's cell mean."""
+    cats = sorted({e["category"] for e in episodes}, key=lambda c: [e["category"] for e in episodes].index(c))
+    levels = sorted({e["level"] for e in episodes})
+    runs = sorted({e["run"] for e in episodes})
+
+    def cell(sel: list[dict]) -> str:
+        per_run = [_mean([e[metric] for e in sel if e["run"] == r]) for r in runs]
+        finite = [v for v in per_run if not math.isnan(v)]
+        return f"{np.mean(finite):.1f} ± {np.std(finite):.1f}" if finite else "-"
+
+    lines = [f"| {metric} | " + " | ".join(f"level {lv}" for lv in levels) + " | all |",
+             "|---|" + "---:|" * (len(levels) + 1)]
+    for c in cats:
+        mine = [e for e in episodes if e["category"] == c]
+        lines.append(f"| {c} | " + " | ".join(cell([e for e in mine if e["level"] == lv]) for lv in levels)
+                     + f" | {cell(mine)} |")
+    return "\n".join(lines)
+
+
+def write_episodes(episodes: list[dict], path: str | Path) -> Path:
+    """Every episode's record (run, trail seed, category, level, the six metrics) as CSV."""
+    path = Path(path)
+    keys = list(dict.fromkeys(k for e in episodes for k in e if not isinstance(e[k], (list, tuple, np.ndarray))))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(episodes)
+    return path
 
 
 def markdown_table(rows: dict[str, dict[str, tuple[float, float]]]) -> str:
