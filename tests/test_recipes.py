@@ -517,3 +517,13 @@ def test_cell_table_and_episode_csv_hand_values(tmp_path):
     assert table[3] == "| ditch | 100.0 ± 0.0 | - | 100.0 ± 0.0 |"
     rows = (tmp_path / "e.csv").read_text().splitlines() if write_episodes(eps, tmp_path / "e.csv") else []
     assert len(rows) == 8 and rows[0].startswith("trail_completion,")
+
+
+def test_experiment_oracle_h1_trails_composes_and_validates(tmp_path):
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_trails", f"checkpoint.dir={tmp_path}"])
+    assert list(cfg.env.categories) == ["randommix", "ditch", "hurdle", "gap", "forest"] and cfg.env.curriculum
+    assert list(cfg.feedforward_anneal) == [10_000_000, 50_000_000] and cfg.env.gait_feedforward == 1.0
+    assert Path(cfg.checkpoint.init).is_file()  # the RandomMix oracle it starts from is committed
+    oracle_ppo.validate(cfg)
+    plain = cfg_of("oracle_ppo", [])
+    assert plain.checkpoint.init is None and plain.get("feedforward_anneal") is None  # defaults untouched
