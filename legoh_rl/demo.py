@@ -33,7 +33,13 @@ def _compose(name: str, overrides: list[str]):
         return compose(config_name=name, overrides=overrides)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m legoh_rl.demo", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog="Artefacts go to $LEGOH_DEMO_OUT (default outputs/demo).")
+    parser.parse_args(argv)
     sys.path.insert(0, str(RECIPES))
     import evaluate as evaluate_recipe
     import oracle_ppo

@@ -527,3 +527,15 @@ def test_experiment_oracle_h1_trails_composes_and_validates(tmp_path):
     oracle_ppo.validate(cfg)
     plain = cfg_of("oracle_ppo", [])
     assert plain.checkpoint.init is None and plain.get("feedforward_anneal") is None  # defaults untouched
+
+
+def test_demo_help_prints_usage_and_runs_nothing(capsys):
+    from legoh_rl import demo
+
+    with pytest.raises(SystemExit) as exit_info:
+        demo.main(["--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: python -m legoh_rl.demo") and "short oracle PPO training" in out
+    with pytest.raises(SystemExit):
+        demo.main(["--bogus"])
