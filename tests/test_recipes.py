@@ -518,7 +518,7 @@ def test_cell_table_and_episode_csv_hand_values(tmp_path):
     # gap level 0: run 0 50, run 1 100 -> 75 +- 25; all of gap: run 0 33.3, run 1 50 -> 41.7 +- 8.3
     assert table[2] == "| gap | 75.0 ± 25.0 | 0.0 ± 0.0 | 41.7 ± 8.3 |"
     assert table[3] == "| ditch | 100.0 ± 0.0 | - | 100.0 ± 0.0 |"
-    rows = (tmp_path / "e.csv").read_text().splitlines() if write_episodes(eps, tmp_path / "e.csv") else []
+    rows = write_episodes(eps, tmp_path / "e.csv").read_text().splitlines()
     assert len(rows) == 8 and rows[0].startswith("trail_completion,")
 
 
