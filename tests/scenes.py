@@ -15,14 +15,17 @@ class BoxScene:
         num_levels: tiles (all identical, one per level) so curricula can move.
         goal_spacing: distance between expert goals, m.
         edge_x: x positions of edge lines (for feet-edge tests), or none.
+        pit_x: (x_lo, x_hi) of a band of samples marked as pit (for feet-in-pit tests; the ground
+            stays flat), or none.
     """
 
     categories = ("flat",)
 
-    def __init__(self, boxes=(), trail_length=6.0, num_levels=5, goal_spacing=1.5, edge_x=()):
+    def __init__(self, boxes=(), trail_length=6.0, num_levels=5, goal_spacing=1.5, edge_x=(), pit_x=None):
         self.boxes = [(np.asarray(c, float), np.asarray(h, float)) for c, h in boxes]
         self.num_levels = num_levels
         self.edge_x = np.asarray(edge_x, float)
+        self.pit_x = pit_x
         T = num_levels
         self.tile_level = np.arange(T)
         self.tile_category = np.zeros(T, dtype=np.int64)
@@ -62,3 +65,9 @@ class BoxScene:
         if self.edge_x.size == 0:
             return np.zeros(xy.shape[0], dtype=bool)
         return (np.abs(xy[:, 0:1] - self.edge_x[None]) < 0.05).any(axis=1)
+
+    def pit_at(self, xy):
+        xy = np.asarray(xy)
+        if self.pit_x is None:
+            return np.zeros(xy.shape[0], dtype=bool)
+        return (xy[:, 0] >= self.pit_x[0]) & (xy[:, 0] <= self.pit_x[1])

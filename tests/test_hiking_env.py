@@ -328,6 +328,45 @@ def test_curriculum_moves_levels_by_progress():
     assert c.update(np.array([1]), np.array([0.0]), np.array([10.0]), np.array([True]), rng)[0] == 2  # reached
 
 
+def test_world_categories_round_robin_or_weighted():
+    from legoh_rl.envs.curriculum import world_categories
+
+    np.testing.assert_array_equal(world_categories(5, np.array([0, 1, 2])), [0, 1, 2, 0, 1])
+    # quotas 2 / 4 / 4: exact
+    np.testing.assert_array_equal(np.bincount(world_categories(10, np.array([0, 1, 2]), [1, 2, 2])), [2, 4, 4])
+    # quotas 10 * (0.25, 0.375, 0.375) = 2.5 / 3.75 / 3.75: floors 2 / 3 / 3, the two largest remainders get one more
+    np.testing.assert_array_equal(np.bincount(world_categories(10, np.array([0, 1, 2]), [2, 3, 3])), [2, 4, 4])
+    # 256 worlds over five categories weighted 1 / 1.5 / 1 / 1.5 / 0.6
+    counts = np.bincount(world_categories(256, np.arange(5), [1, 1.5, 1, 1.5, 0.6]))
+    assert counts.sum() == 256 and counts.tolist() == [46, 69, 46, 68, 27]
+    with pytest.raises(ValueError, match="one positive weight per category"):
+        world_categories(4, np.array([0, 1]), [1.0])
+    with pytest.raises(ValueError, match="category_weights"):
+        HikingEnvConfig(categories=("gap", "ditch"), category_weights=(1.0, 0.0))
+    with pytest.raises(ValueError, match="feet_edge_from_level"):
+        HikingEnvConfig(feet_edge_from_level=-1)
+
+
+def test_feet_in_pit_counts_feet_standing_over_pit_samples():
+    # robots spawn at x = 0 and stand with both feet down: both over the pit band, or neither
+    for band, expect in (((-0.5, 0.5), 2.0), ((2.0, 3.0), 0.0)):
+        env = make(n=2, scene=BoxScene(pit_x=band), reward_overrides={"feet_in_pit": -3.0},
+                   spawn_jitter_xy=0.0, spawn_jitter_yaw=0.0)
+        env.reset()
+        for _ in range(10):
+            nxt = act(env)
+        contact = env.read_state()["contact"]
+        assert contact.all()
+        np.testing.assert_allclose(nxt["reward_terms", "feet_in_pit"].numpy().ravel(), [-3.0 * env.dt * expect] * 2,
+                                   rtol=1e-5)
+
+    class NoPits(BoxScene):
+        pit_at = None
+
+    with pytest.raises(ValueError, match="feet_in_pit needs trails with pit_at"):
+        make(n=1, scene=NoPits(), reward_overrides={"feet_in_pit": -1.0})
+
+
 def test_only_positive_rewards_clips_the_total_not_the_terms():
     for clip in (True, False):
         env = make(n=2, only_positive_rewards=clip)

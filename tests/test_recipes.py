@@ -9,6 +9,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
+from legoh_rl.training.builders import env_config
 from legoh_rl.training.checkpoint import load_checkpoint
 from legoh_rl.training.evaluation import aggregate, markdown_table
 
@@ -530,6 +531,19 @@ def test_experiment_oracle_h1_trails_composes_and_validates(tmp_path):
     oracle_ppo.validate(cfg)
     plain = cfg_of("oracle_ppo", [])
     assert plain.checkpoint.init is None and plain.get("feedforward_anneal") is None  # defaults untouched
+
+
+def test_experiment_oracle_h1_footholds_is_stage_2_of_trails(tmp_path):
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_footholds", f"checkpoint.dir={tmp_path}"])
+    trails = cfg_of("oracle_ppo", ["experiment=oracle_h1_trails", f"checkpoint.dir={tmp_path}"])
+    assert cfg.checkpoint.init == "runs/oracle_h1_trails/last.pt" and Path(cfg.checkpoint.init).is_file()
+    assert dict(cfg.env.reward_overrides) == {**trails.env.reward_overrides, "feet_in_pit": -5.0}
+    assert cfg.ppo == trails.ppo and cfg.model == trails.model and cfg.env.num_envs == trails.env.num_envs
+    oracle_ppo.validate(cfg)
+    env = env_config(cfg.env, mode="oracle")
+    assert env.category_weights == (1.0, 1.5, 1.0, 1.5, 0.6) and env.feet_edge_from_level == 1
+    # the feedforward gain keeps stage 1's slope: 1 / 40M frames from 0.922
+    assert list(cfg.feedforward_anneal) == [0, 36_900_000] and cfg.env.gait_feedforward == 0.922
 
 
 def test_demo_help_prints_usage_and_runs_nothing(capsys):

@@ -103,6 +103,14 @@ def test_feet_edge_only_above_level_3():
     np.testing.assert_allclose(REWARD_FUNCTIONS["feet_edge"](s), [0.0, 1.0])
 
 
+def test_feet_edge_gate_can_start_lower():
+    s = state(feet_at_edge=np.array([[True, True], [True, False], [False, False]]),
+              terrain_level=np.array([0, 1, 4]), feet_edge_from_level=1)
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_edge"](s), [0.0, 1.0, 0.0])
+    s.feet_edge_from_level = 0
+    np.testing.assert_allclose(REWARD_FUNCTIONS["feet_edge"](s), [2.0, 1.0, 0.0])
+
+
 def test_feet_air_time():
     s = state(feet_air_time=np.array([[0.8, 0.3], [0.8, 0.0]]), first_contact=np.array([[True, True], [False, False]]))
     np.testing.assert_allclose(REWARD_FUNCTIONS["feet_air_time"](s), [0.3 - 0.2, 0.0])

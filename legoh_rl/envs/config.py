@@ -25,6 +25,9 @@ class HikingEnvConfig:
             depth and the privileged part, which the frozen teacher reads) or ``"eval"``
             (benchmark: 0.89 m goal radius, 30 s episodes, no curriculum, no randomisation).
         categories: trail categories of the grid.
+        category_weights: share of the worlds each category gets, one positive weight per entry of
+            ``categories`` (None: equal shares). Worlds keep their category, so this sets how much
+            of each batch the hard categories fill (counts by largest remainder).
         levels: difficulty levels the worlds start on (the grid always holds all levels).
         variants: seeded variants per category and level.
         depth: render the head depth camera (default: off in oracle mode, on otherwise).
@@ -53,6 +56,9 @@ class HikingEnvConfig:
             ``q* = q_default + swing_reference(phi) + action_scale * a``: the clock steps the legs
             by itself and the policy's action is a residual on that gait. Not in the paper: a
             structural prior for small sample budgets (docs/history/results-sessions-1-12.md, run 13).
+        feet_edge_from_level: lowest terrain level on which the ``feet_edge`` term counts (paper:
+            4, "terrain_level > 3"). Lower values penalise footholds on edges and in pits already on
+            easy trails, where a missed foothold costs a stumble, not a fall.
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
@@ -69,6 +75,7 @@ class HikingEnvConfig:
     num_envs: int = 64
     mode: str = "oracle"
     categories: tuple[str, ...] = ("randommix", "ditch", "hurdle", "gap", "forest")
+    category_weights: tuple[float, ...] | None = None
     levels: tuple[int, ...] = (0,)
     variants: int = 2
     depth: bool | None = None
@@ -94,6 +101,7 @@ class HikingEnvConfig:
     gait_stance: float = 0.55
     gait_amplitude: float = 0.25
     gait_feedforward: float = 0.0
+    feet_edge_from_level: int = 4
     reward_overrides: dict[str, float] = field(default_factory=dict)
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
@@ -130,6 +138,13 @@ class HikingEnvConfig:
                              f"(got gait_period={self.gait_period!r})")
         if not self.levels:
             raise ValueError("levels must name at least one difficulty level")
+        if self.category_weights is not None:
+            weights = tuple(self.category_weights)
+            if len(weights) != len(self.categories) or not all(w > 0 for w in weights):
+                raise ValueError(f"category_weights must hold one positive weight per category "
+                                 f"{list(self.categories)}, got {list(weights)}")
+        if not isinstance(self.feet_edge_from_level, int) or self.feet_edge_from_level < 0:
+            raise ValueError(f"feet_edge_from_level must be an integer >= 0, got {self.feet_edge_from_level!r}")
 
     @property
     def depth_enabled(self) -> bool:

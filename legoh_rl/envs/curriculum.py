@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CurriculumConfig", "Curriculum"]
+__all__ = ["CurriculumConfig", "Curriculum", "world_categories"]
 
 
 @dataclass
@@ -32,6 +32,27 @@ class CurriculumConfig:
     def __post_init__(self) -> None:
         if not 0.0 <= self.down < self.up:
             raise ValueError(f"need 0 <= down < up, got down={self.down}, up={self.up}")
+
+
+def world_categories(num_worlds: int, categories: np.ndarray, weights=None) -> np.ndarray:
+    """The trail category of each world, for good: ``categories`` (C,) int round-robin, or in
+    shares proportional to ``weights`` (C,) positive (counts by largest remainder, ties to the
+    earlier category). Returns (num_worlds,) int.
+
+    Raises:
+        ValueError: ``weights`` does not hold one positive weight per category.
+    """
+    categories = np.asarray(categories, dtype=np.int64)
+    if weights is None:
+        return categories[np.arange(num_worlds) % categories.size]
+    w = np.asarray(weights, dtype=np.float64)
+    if w.shape != categories.shape or not np.all(w > 0):
+        raise ValueError(f"need one positive weight per category ({categories.size}), got {list(weights)}")
+    quota = num_worlds * w / w.sum()
+    counts = np.floor(quota).astype(np.int64)
+    rest = num_worlds - int(counts.sum())
+    counts[np.argsort(-(quota - counts), kind="stable")[:rest]] += 1
+    return np.repeat(categories, counts)
 
 
 class Curriculum:

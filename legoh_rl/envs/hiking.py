@@ -31,7 +31,7 @@ from torchrl.envs import EnvBase
 
 from legoh_rl.envs.body_state import BodyStateReader
 from legoh_rl.envs.config import HikingEnvConfig
-from legoh_rl.envs.curriculum import Curriculum
+from legoh_rl.envs.curriculum import Curriculum, world_categories
 from legoh_rl.envs.gait import swing_joints, swing_reference
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
@@ -79,7 +79,7 @@ class TrailSource(Protocol):
     (geom group 0; obstacles are in group 1). Optional faster lookups the env uses when present:
     ``height_around(xy, yaw, offsets)`` (the scandots), ``height_at_t``/``ground_height_at_t``
     (:class:`~legoh_rl.envs.height_map.HeightMap`, the depth camera), ``max_height_near``/
-    ``min_height_near`` (the camera's march bounds).
+    ``min_height_near`` (the camera's march bounds), ``pit_at`` (the ``feet_in_pit`` term).
     """
 
     categories: tuple[str, ...]
@@ -146,6 +146,8 @@ class HikingEnv(EnvBase):
         dr_cfg = DomainRandConfig.off() if cfg.is_eval else cfg.domain_rand
         self.randomizer = DomainRandomizer(dr_cfg, self.worlds)
         self.weights = reward_weights(self.robot.reward_weights, cfg.reward_overrides, student=cfg.mode != "oracle")
+        if "feet_in_pit" in self.weights and getattr(trails, "pit_at", None) is None:
+            raise ValueError(f"reward term feet_in_pit needs trails with pit_at(xy); {type(trails).__name__} has none")
         self.camera = None
         if cfg.depth_enabled:  # obstacles are static and the same in every world: one caster
             caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
@@ -170,8 +172,7 @@ class HikingEnv(EnvBase):
         levels0 = self.rng.choice(np.asarray(cfg.levels, dtype=np.int64), size=N)
         self.curriculum = Curriculum(cfg.curriculum if not cfg.is_eval else type(cfg.curriculum)(enabled=False),
                                      trails.num_levels, levels0)
-        cats = np.unique(trails.tile_category)
-        self.world_category = cats[np.arange(N) % cats.size]
+        self.world_category = world_categories(N, np.unique(trails.tile_category), cfg.category_weights)
         self.metrics = EpisodeMetrics(N)
         self._alloc_buffers(N, m)
         self._make_specs()
@@ -520,6 +521,9 @@ class HikingEnv(EnvBase):
             gait_phase=s["gait_phase"], gait_stance=self.cfg.gait_stance,
             # the swing reference only when a term reads it
             gait_ref_q=self.gait_reference(s["gait_phase"]) if "gait_joint_ref" in self.weights else None,
+            feet_edge_from_level=self.cfg.feet_edge_from_level,
+            feet_in_pit=(self.trails.pit_at(s["feet_xy"].reshape(-1, 2)).reshape(-1, 2) & s["contact"]
+                         if "feet_in_pit" in self.weights else None),
         )
 
     def gait_reference(self, phase: np.ndarray | None = None) -> np.ndarray | None:

@@ -48,6 +48,12 @@ contact state matches the clock (stance for the first ``gait_stance`` of its leg
 right leg half a period behind the left), and ``gait_joint_ref`` leg joints that follow the
 clock's swing reference, as Humanoid-Gym's periodic contact and joint-position rewards
 (:mod:`legoh_rl.envs.gait`).
+
+A foothold term, also weight 0 by default, gives the terrain curriculum a signal below the level
+where a missed foothold is fatal: ``feet_in_pit`` counts feet in contact whose position lies over
+a pit sample (``feet_in_pit`` (N, 2) bool). On level 0 pits are 0.1 m cracks a robot can stand
+in, so without it nothing there teaches it to step over them before they are 1 m deep; the
+paper's ``feet_edge`` only counts edges above level 3 (``feet_edge_from_level``).
 """
 
 from __future__ import annotations
@@ -110,6 +116,8 @@ class RewardState:
     gait_phase: np.ndarray | None = None
     gait_stance: float = 0.55
     gait_ref_q: np.ndarray | None = None
+    feet_edge_from_level: int = 4
+    feet_in_pit: np.ndarray | None = None
 
     def require(self, *names: str) -> None:
         """Raise ``ValueError`` naming the optional fields in ``names`` that are unset."""
@@ -193,8 +201,15 @@ def reward_feet_stumble(s: RewardState) -> np.ndarray:
 
 
 def reward_feet_edge(s: RewardState) -> np.ndarray:
-    """(terrain_level > 3) * number of feet in contact on an edge cell."""
-    return (s.terrain_level > 3) * np.sum(s.feet_at_edge, axis=1).astype(np.float64)
+    """(terrain_level >= feet_edge_from_level) * number of feet in contact on an edge cell (the
+    paper's gate is terrain_level > 3, the default ``feet_edge_from_level`` = 4)."""
+    return (s.terrain_level >= s.feet_edge_from_level) * np.sum(s.feet_at_edge, axis=1).astype(np.float64)
+
+
+def reward_feet_in_pit(s: RewardState) -> np.ndarray:
+    """Number of feet in contact over a pit sample (not in the paper's table; weight 0 unless set)."""
+    s.require("feet_in_pit")
+    return np.sum(s.feet_in_pit, axis=1).astype(np.float64)
 
 
 def reward_feet_air_time(s: RewardState) -> np.ndarray:
@@ -287,7 +302,7 @@ STUDENT_ONLY = frozenset({"pn_distance"})
 # legged_gym "basic elements", not in the paper's table: off unless a recipe sets them
 EXTRA_WEIGHTS: dict[str, float] = {
     "alive": 0.0, "termination": 0.0, "feet_clearance": 0.0, "feet_slip": 0.0, "gait_contact": 0.0,
-    "gait_joint_ref": 0.0,
+    "gait_joint_ref": 0.0, "feet_in_pit": 0.0,
 }
 # added after the only_positive_rewards clip
 AFTER_CLIP = frozenset({"termination"})

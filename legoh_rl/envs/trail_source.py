@@ -95,6 +95,10 @@ class GridTrails:
         """Whether world points lie on an edge cell, (M, 2) -> (M,) bool."""
         return self.grid.edge_at(xy)
 
+    def pit_at(self, xy: np.ndarray) -> np.ndarray:
+        """Whether world points lie over a pit sample (gaps, stone fields), (M, 2) -> (M,) bool."""
+        return self.grid.pit_at(xy)
+
     @property
     def edge_grid(self) -> tuple[np.ndarray, tuple[float, float], float]:
         """What :meth:`edge_at` reads: the edge mask (nx, ny) bool, the world (x0, y0) of sample

@@ -65,7 +65,10 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         gait_amplitude=float(cfg.get("gait_amplitude", 0.25)),
         gait_feedforward=float(cfg.get("gait_feedforward", 0.0)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
+        feet_edge_from_level=int(cfg.get("feet_edge_from_level", 4)),
     )
+    if cfg.get("category_weights") is not None:
+        kwargs["category_weights"] = tuple(float(w) for w in cfg["category_weights"])
     if not cfg.get("domain_rand", True):
         kwargs["domain_rand"] = DomainRandConfig.off()
     if not cfg.get("curriculum", True):
