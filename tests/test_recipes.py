@@ -448,11 +448,15 @@ def test_init_starts_a_fresh_run_from_a_policy_file(tmp_path):
         assert torch.equal(v, saved[k]), k
     assert parts["iteration"] == 0 and parts["frames"] == 0  # a new run: counters and optimiser fresh
     assert not parts["optim"].state_dict()["state"]
+    # a later stage of a feedforward anneal starts from the gain where the last one stopped
+    later = oracle_ppo.build(cfg_of("oracle_ppo", TINY + GAIT + [f"checkpoint.init={slim}", "env.gait_feedforward=0.9",
+                                                                 f"checkpoint.dir={tmp_path / 'later'}"]))
+    assert later["env"].cfg.gait_feedforward == 0.9
 
 
 @pytest.mark.parametrize("extra,message", [
     (["model.layers=[32,32]"], r"other network sizes than model.layers"),
-    (["env.gait_feedforward=0.5"], r"gait_feedforward: checkpoint has 1.0, this run needs 0.5"),
+    (["env.gait_period=0.6"], r"gait_period: checkpoint has 0.8, this run needs 0.6"),
 ])
 def test_init_from_a_policy_that_does_not_fit_is_refused(tmp_path, extra, message):
     src = tmp_path / "src"
@@ -531,6 +535,13 @@ def test_experiment_oracle_h1_trails_composes_and_validates(tmp_path):
     oracle_ppo.validate(cfg)
     plain = cfg_of("oracle_ppo", [])
     assert plain.checkpoint.init is None and plain.get("feedforward_anneal") is None  # defaults untouched
+
+
+def test_a_misspelt_experiment_is_an_error_not_the_defaults():
+    from hydra.errors import MissingConfigException
+
+    with pytest.raises(MissingConfigException, match="experiment/oracle_h1_trial"):
+        cfg_of("oracle_ppo", ["experiment=oracle_h1_trial"])
 
 
 def test_experiment_oracle_h1_footholds_is_stage_2_of_trails(tmp_path):
