@@ -13,16 +13,11 @@ checkpoints are written atomically and can be resumed.
 
 from __future__ import annotations
 
-import sys
-import time
 from pathlib import Path
 
 import hydra
 import torch
-from omegaconf import DictConfig, OmegaConf
-from torchrl.collectors import Collector
-from torchrl.envs.utils import ExplorationType
-from tqdm import tqdm
+from omegaconf import DictConfig
 
 from legoh_rl.envs.threads import torch_threads
 from legoh_rl.objectives.ppo import (
@@ -32,6 +27,7 @@ from legoh_rl.objectives.ppo import (
     policy_kl,
     set_loss_coefficients,
 )
+from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     make_env,
     make_oracle,
@@ -46,14 +42,15 @@ from legoh_rl.training.checkpoint import (
     load_weights,
     require_training_state,
     resume_path,
-    rng_state,
-    save_checkpoint,
     set_rng_state,
 )
-from legoh_rl.training.interrupt import GracefulStop
-from legoh_rl.training.run_dir import check_run_dir, open_run_dir
-from legoh_rl.training.run_log import RunLog
+from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.run_dir import check_run_dir
+from legoh_rl.training.runner import Trainer
 from legoh_rl.training.schedules import check_anneal, feedforward_gain
+from legoh_rl.training.stages import run_experiment
+
+register_configs()  # the env group's defaults, read from HikingEnvConfig
 
 
 def ppo_config(cfg: DictConfig) -> PPOConfig:
@@ -142,7 +139,43 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
     return stats
 
 
-def build(cfg: DictConfig, env=None) -> dict:
+class OracleTrainer(Trainer):
+    """Oracle PPO for the shared loop (:mod:`legoh_rl.training.runner`): the env is collected as
+    it is, the actor samples, and each batch gets :func:`ppo_update`."""
+
+    desc = "oracle PPO"
+    collector_kwargs = {"auto_register_policy_transforms": False}  # the oracle is stateless
+
+    def __init__(self, cfg: DictConfig, env, networks, actor, loss, gae, optim, sched) -> None:
+        self.cfg, self.env, self.collect_env, self.behaviour = cfg, env, env, actor
+        self.networks, self.actor, self.loss, self.gae, self.optim, self.sched = networks, actor, loss, gae, optim, sched
+        self.update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
+
+    @property
+    def meta(self) -> dict:
+        """What a loader must match, with the feedforward gain the last batch was collected with."""
+        return policy_meta(self.env, "oracle")
+
+    def before_collect(self) -> None:
+        set_feedforward(self.env, self.cfg, self.frames)
+
+    def update(self, data) -> dict[str, float]:
+        with torch_threads(self.update_threads):  # the physics threads are idle during the update
+            stats = ppo_update(data, self.loss, self.gae, self.optim, self.sched, self.actor, self.cfg)
+        stats["train/gait_feedforward"] = self.env.cfg.gait_feedforward  # the gain the batch was collected with
+        return stats
+
+    def state_dict(self) -> dict:
+        return {"loss": self.loss.state_dict(), "actor": self.actor.state_dict(),
+                "networks": self.networks.state_dict(), "oracle_config": self.networks.cfg.__dict__,
+                "optim": self.optim.state_dict(), "sched": self.sched.state_dict()}
+
+    def postfix(self, stats: dict) -> dict[str, str]:
+        return {"reward": f"{stats['reward/total']:.3f}", "level": f"{stats['curriculum/mean_level']:.2f}",
+                **super().postfix(stats)}
+
+
+def build(cfg: DictConfig, env=None) -> OracleTrainer:
     """Env, networks, loss, optimiser and counters, restored from the checkpoint to resume."""
     validate(cfg)
     torch.set_num_threads(int(cfg.torch_threads))
@@ -152,8 +185,7 @@ def build(cfg: DictConfig, env=None) -> dict:
     max_std = cfg.model.get("max_std")
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std))
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
-    parts = {"env": env, "networks": networks, "actor": actor, "loss": loss, "gae": gae, "optim": optim,
-             "sched": sched, "iteration": 0, "frames": 0, "run_id": None}
+    trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is None:
         set_feedforward(env, cfg, 0)
@@ -162,8 +194,11 @@ def build(cfg: DictConfig, env=None) -> dict:
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
-        set_feedforward(env, cfg, state["frames"])  # an annealed gain is part of the checkpoint's meta
-        check_meta(state["meta"], policy_meta(env, "oracle"), path)
+        set_feedforward(env, cfg, state["frames"])
+        expected = policy_meta(env, "oracle")
+        if cfg.get("feedforward_anneal") is not None:  # saved one batch before the gain resumes at
+            expected.pop("gait_feedforward", None)
+        check_meta(state["meta"], expected, path)
         have = (state.get("oracle_config") or {}).get("actor_layers")
         load_weights(loss, state["loss"], path, "networks",
                      f"set model.layers={list(have) if have else '<its sizes>'} to resume it (this run has "
@@ -176,85 +211,21 @@ def build(cfg: DictConfig, env=None) -> dict:
         if not cfg.checkpoint.get("keep_curriculum", True):  # a new stage: worlds start again on env.levels
             env.curriculum.levels[:] = levels
         set_rng_state(state["rng"])
-        parts.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
+        trainer.iteration, trainer.frames, trainer.run_id = state["iteration"], state["frames"], state.get("run_id")
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
-    return parts
+    return trainer
 
 
 def train(cfg: DictConfig, env=None) -> dict:
-    """Run the oracle training described by ``cfg``; returns a summary of the last iteration
-    (with ``interrupted``: the signal number, when SIGINT/SIGTERM stopped it after a checkpoint)."""
-    validate(cfg)
-    with open_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False))), \
-            GracefulStop() as stop:
-        return _train(cfg, env, stop)
-
-
-def _train(cfg: DictConfig, env, stop: GracefulStop) -> dict:
-    p = build(cfg, env)
-    env, networks, actor, loss, gae, optim, sched = (p[k] for k in ("env", "networks", "actor", "loss", "gae",
-                                                                    "optim", "sched"))
-    iteration, frames, run_id = p["iteration"], p["frames"], p["run_id"]
-    ckpt_dir = Path(cfg.checkpoint.dir)
-
-    run = RunLog(cfg, ckpt_dir, run_id, frames)
-    n = cfg.env.num_envs
-    update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
-    frames_per_batch = n * cfg.collector.steps_per_env
-    remaining = int(cfg.collector.total_frames) - frames
-    if remaining < frames_per_batch:
-        print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
-        return {"iteration": iteration, "frames": frames}
-    collector = Collector(env, actor, frames_per_batch=frames_per_batch, total_frames=remaining,
-                          exploration_type=ExplorationType.RANDOM,
-                          auto_register_policy_transforms=False)  # the oracle is stateless
-
-    def checkpoint() -> Path:
-        path = save_checkpoint(ckpt_dir / "last.pt", {
-            "meta": policy_meta(env, "oracle"), "loss": loss.state_dict(), "actor": actor.state_dict(),
-            "networks": networks.state_dict(),
-            "oracle_config": networks.cfg.__dict__, "optim": optim.state_dict(), "sched": sched.state_dict(),
-            "env": env.state_dict(), "rng": rng_state(), "iteration": iteration, "frames": frames,
-            "run_id": run.run_id, "config": OmegaConf.to_container(cfg, resolve=True),
-        })
-        run.flush()  # the logs hold what the checkpoint covers
-        return path
-
-    summary: dict = {}
-    bar = tqdm(total=remaining, unit="frames", desc="oracle PPO")
-    for data in collector:
-        t_update = time.perf_counter()
-        with torch_threads(update_threads):  # the physics threads are idle during the update
-            stats = ppo_update(data, loss, gae, optim, sched, actor, cfg)
-        collector.update_policy_weights_()
-        iteration += 1
-        frames += data.numel()
-        bar.update(data.numel())
-        stats["train/update_s"] = time.perf_counter() - t_update
-        stats["train/gait_feedforward"] = env.cfg.gait_feedforward  # the gain the batch was collected with
-        stats = run.log(iteration, frames, data, env, stats)
-        bar.set_postfix(reward=f"{stats['reward/total']:.3f}", level=f"{stats['curriculum/mean_level']:.2f}",
-                        sr=f"{stats.get('episode/success', float('nan')):.0f}")
-        if iteration % cfg.checkpoint.every == 0:
-            checkpoint()
-        summary = {"iteration": iteration, "frames": frames, **stats}
-        set_feedforward(env, cfg, frames)  # for the next batch
-        if stop.signum is not None:
-            summary["interrupted"] = stop.signum
-            break
-    bar.close()
-    collector.shutdown()
-    summary["checkpoint"] = str(checkpoint())
-    run.close()
-    return summary
+    """Run the oracle training described by ``cfg`` (:func:`legoh_rl.training.runner.train`);
+    returns a summary of the last iteration (with ``interrupted``: the signal number, when
+    SIGINT/SIGTERM stopped it after a checkpoint)."""
+    return runner.train(cfg, validate, lambda c: build(c, env))
 
 
 @hydra.main(config_path="config", config_name="oracle_ppo", version_base=None)
 def main(cfg: DictConfig) -> None:
-    summary = train(cfg)
-    print(f"done: {summary.get('iteration')} iterations, {summary.get('frames')} frames; checkpoint {summary.get('checkpoint')}")
-    if summary.get("interrupted"):  # a stage script must not go on to its next stage
-        sys.exit(128 + int(summary["interrupted"]))
+    runner.finish(run_experiment(cfg, train, "oracle_ppo"))
 
 
 if __name__ == "__main__":

@@ -20,19 +20,16 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
 from __future__ import annotations
 
 import hashlib
-import sys
 from pathlib import Path
 
 import hydra
 import torch
-from omegaconf import DictConfig, OmegaConf
-from torchrl.collectors import Collector
-from torchrl.envs.utils import ExplorationType
-from tqdm import tqdm
+from omegaconf import DictConfig
 
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
+from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     gait_kwargs,
     make_env,
@@ -47,10 +44,9 @@ from legoh_rl.training.checkpoint import (
     load_weights,
     require_training_state,
     resume_path,
-    rng_state,
-    save_checkpoint,
     set_rng_state,
 )
+from legoh_rl.training.config_store import register_configs
 from legoh_rl.training.distill import (
     STUDENT_ACTION_KEY,
     DAggerMixture,
@@ -58,13 +54,15 @@ from legoh_rl.training.distill import (
     dagger_beta,
     student_pass,
 )
-from legoh_rl.training.interrupt import GracefulStop
 from legoh_rl.training.locomotion_replay import LocomotionReplay
-from legoh_rl.training.run_dir import check_run_dir, open_run_dir
-from legoh_rl.training.run_log import RunLog
+from legoh_rl.training.run_dir import check_run_dir
+from legoh_rl.training.runner import Trainer
+from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.student import make_student, student_env
 
 PERCEPTIONS = ("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")
+
+register_configs()  # the env group's defaults, read from HikingEnvConfig
 
 
 def validate(cfg: DictConfig) -> None:
@@ -131,7 +129,39 @@ def make_losses(student, critic, num_actions: int, cfg: DictConfig):
     return ppo, gae, dagger, vae, hlm
 
 
-def build(cfg: DictConfig) -> dict:
+class UnifiedTrainer(Trainer):
+    """The unified student for the shared loop (:mod:`legoh_rl.training.runner`): the student env
+    (``collect_env``: depth history, goal tiling, perception hold on ``env``) is collected with
+    the DAgger mixture of student and teacher, and each batch gets :func:`update`."""
+
+    def __init__(self, cfg: DictConfig, **parts) -> None:
+        self.cfg = cfg
+        for name, value in parts.items():
+            setattr(self, name, value)
+        self.desc = f"unified ({cfg.student.perception})"
+        self.behaviour = DAggerMixture(self.student.policy, self.teacher, seed=int(cfg.env.seed))
+
+    def before_collect(self) -> None:
+        self.behaviour.beta = beta_at(self.iteration, self.cfg)
+        self.behaviour.student_mean = self.iteration < self.cfg.dagger_iters
+
+    def update(self, data) -> dict[str, float]:
+        stats = update(self, data, self.iteration, self.cfg)
+        stats["train/dagger_beta"] = self.behaviour.beta
+        stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
+        return stats
+
+    def state_dict(self) -> dict:
+        return {"perception": self.student.perception.state_dict(), "actor": self.student.actor.state_dict(),
+                "critic": self.critic_nets.state_dict(), "vae": self.vae.state_dict(), "optim": self.optim.state_dict(),
+                "sched": self.sched.state_dict(), "vae_optim": self.vae_optim.state_dict(),
+                "teacher": str(self.cfg.teacher), "teacher_sha256": self.teacher_sha256}
+
+    def postfix(self, stats: dict) -> dict[str, str]:
+        return {"im": f"{stats.get('loss/im_action', float('nan')):.3f}", **super().postfix(stats)}
+
+
+def build(cfg: DictConfig) -> UnifiedTrainer:
     """Teacher, env, student, critic, losses, optimisers and counters (restored on resume)."""
     validate(cfg)
     torch.set_num_threads(int(cfg.torch_threads))
@@ -153,26 +183,25 @@ def build(cfg: DictConfig) -> dict:
     if int(rp.get("capacity", 0)) > 0:  # aggregated DAgger data for the locomotion module
         replay = LocomotionReplay(student.actor, int(rp.capacity), int(rp.batch_size), int(rp.steps),
                                   seed=int(cfg.env.seed) + 2)
-    p = dict(replay=replay, teacher=teacher, base=base, env=env, student=student, critic=critic, critic_nets=critic_nets, ppo=ppo,
-             gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim, sched=sched, vae_optim=vae_optim, meta=meta,
-             iteration=0, frames=0, run_id=None)
-    p["teacher_sha256"] = file_digest(cfg.teacher)
+    p = UnifiedTrainer(cfg, replay=replay, teacher=teacher, env=base, collect_env=env, student=student, critic=critic,
+                       critic_nets=critic_nets, ppo=ppo, gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim,
+                       sched=sched, vae_optim=vae_optim, meta=meta, teacher_sha256=file_digest(cfg.teacher))
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is not None:
         state = load_checkpoint(path)
         require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
         check_meta(state["meta"], meta, path)
-        check_teacher(state, cfg, p["teacher_sha256"], path)
+        check_teacher(state, cfg, p.teacher_sha256, path)
         hint = "student.perception, student.preset and the teacher must be the ones it was trained with"
         load_weights(student.perception, state["perception"], path, "perception weights", hint)
         load_weights(student.actor, state["actor"], path, "locomotion weights", hint)
         load_weights(critic_nets, state["critic"], path, "critic weights", hint)
         load_weights(vae, state["vae"], path, "masked-VAE weights", hint)
         for key in ("optim", "sched", "vae_optim"):
-            p[key].load_state_dict(state[key])
+            getattr(p, key).load_state_dict(state[key])
         base.load_state_dict(state["env"])
         set_rng_state(state["rng"])
-        p.update(iteration=state["iteration"], frames=state["frames"], run_id=state.get("run_id"))
+        p.iteration, p.frames, p.run_id = state["iteration"], state["frames"], state.get("run_id")
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
     return p
 
@@ -185,10 +214,9 @@ def beta_at(iteration: int, cfg: DictConfig) -> float:
     return dagger_beta(iteration, float(cfg.dagger_beta0), int(decay))
 
 
-def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
+def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
     """One training step on a collected ``[N, T]`` batch; returns mean diagnostics."""
-    teacher, student, ppo, gae, dagger, vae, hlm = (p[k] for k in ("teacher", "student", "ppo", "gae", "dagger",
-                                                                    "vae", "hlm"))
+    teacher, ppo, gae, dagger, vae, hlm = p.teacher, p.ppo, p.gae, p.dagger, p.vae, p.hlm
     teacher.label(data)
     stats: dict[str, float] = {}
 
@@ -200,9 +228,9 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
     for _ in range(cfg.hlm.vae_steps if cfg.hlm.enabled else 0):
         out = vae(flat[torch.randperm(flat.shape[0])[: min(2048, flat.shape[0])]])
         loss = sum(v for k, v in out.items() if k.startswith("loss_"))
-        p["vae_optim"].zero_grad()
+        p.vae_optim.zero_grad()
         loss.backward()
-        p["vae_optim"].step()
+        p.vae_optim.step()
         add("vae/loss", loss / cfg.hlm.vae_steps)
     rl = iteration >= cfg.dagger_iters
     use_hlm = cfg.hlm.enabled and iteration >= cfg.hlm.warmup_iters
@@ -210,7 +238,7 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
         with torch.no_grad():
             gae(data)
     n_mb = 0
-    params = [q for g in p["optim"].param_groups for q in g["params"]]
+    params = [q for g in p.optim.param_groups for q in g["params"]]
     # One gather per iteration: the worlds in a random order, without the "next" entries the
     # losses no longer need (GAE is done). Minibatches are then slices (views) of it. Gathering
     # per minibatch copied ~165 MB of depth stacks into fresh pages each time, ~28% of a profiled
@@ -220,7 +248,7 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
     for _ in range(cfg.ppo.num_epochs if rl else int(cfg.dagger_epochs)):
         for start in range(0, data.shape[0], size):
             mb = train[start : start + size]
-            student_pass(p["student"], mb)
+            student_pass(p.student, mb)
             terms = {k: v for k, v in dagger(mb).items() if k.startswith("loss_")}
             if use_hlm:
                 terms.update({k: v for k, v in hlm(mb).items() if k.startswith("loss_")})
@@ -229,100 +257,37 @@ def update(p: dict, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
                 for k in ("loss_objective", "loss_critic", "loss_entropy"):
                     terms[k] = cfg.ppo.weight * out[k]
             total = sum(terms.values())
-            p["optim"].zero_grad()
+            p.optim.zero_grad()
             total.backward()
             torch.nn.utils.clip_grad_norm_(params, cfg.ppo.max_grad_norm)
-            p["optim"].step()
+            p.optim.step()
             if rl:
                 with torch.no_grad():
-                    add("train/kl", policy_kl(p["student"].actor, mb))
+                    add("train/kl", policy_kl(p.student.actor, mb))
             for k, v in terms.items():
                 add(f"loss/{k[5:]}", v)
             n_mb += 1
     stats = {k: v / n_mb if not k.startswith("vae/") else v for k, v in stats.items()}
-    if p["replay"] is not None:  # extra locomotion steps on the last dagger_replay.capacity steps
-        p["replay"].extend(data)
-        stats["loss/replay_im_action"] = p["replay"].train(p["optim"], cfg.ppo.max_grad_norm)
+    if p.replay is not None:  # extra locomotion steps on the last dagger_replay.capacity steps
+        p.replay.extend(data)
+        stats["loss/replay_im_action"] = p.replay.train(p.optim, cfg.ppo.max_grad_norm)
     if rl:
-        stats["train/lr"] = p["sched"].step(stats["train/kl"])
+        stats["train/lr"] = p.sched.step(stats["train/kl"])
     stats["train/phase_rl"] = float(rl)
     stats["train/hlm_on"] = float(use_hlm)
     return stats
 
 
 def train(cfg: DictConfig) -> dict:
-    """Run the unified training described by ``cfg``; returns a summary of the last iteration
-    (with ``interrupted``: the signal number, when SIGINT/SIGTERM stopped it after a checkpoint)."""
-    validate(cfg)
-    with open_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False))), \
-            GracefulStop() as stop:
-        return _train(cfg, stop)
-
-
-def _train(cfg: DictConfig, stop: GracefulStop) -> dict:
-    p = build(cfg)
-    base, env, student = p["base"], p["env"], p["student"]
-    iteration, frames = p["iteration"], p["frames"]
-    ckpt_dir = Path(cfg.checkpoint.dir)
-    run = RunLog(cfg, ckpt_dir, p["run_id"], frames)
-    fpb = cfg.env.num_envs * cfg.collector.steps_per_env
-    remaining = int(cfg.collector.total_frames) - frames
-    if remaining < fpb:
-        print(f"nothing left to train: {frames} of {cfg.collector.total_frames} frames done")
-        return {"iteration": iteration, "frames": frames}
-    behaviour = DAggerMixture(student.policy, p["teacher"], seed=int(cfg.env.seed))
-    behaviour.beta = beta_at(iteration, cfg)
-    behaviour.student_mean = iteration < cfg.dagger_iters
-    collector = Collector(env, behaviour, frames_per_batch=fpb, total_frames=remaining,
-                          exploration_type=ExplorationType.RANDOM)
-
-    def checkpoint() -> Path:
-        path = save_checkpoint(ckpt_dir / "last.pt", {
-            "meta": p["meta"], "perception": student.perception.state_dict(), "actor": student.actor.state_dict(),
-            "critic": p["critic_nets"].state_dict(), "vae": p["vae"].state_dict(), "optim": p["optim"].state_dict(),
-            "sched": p["sched"].state_dict(), "vae_optim": p["vae_optim"].state_dict(), "env": base.state_dict(),
-            "rng": rng_state(), "iteration": iteration, "frames": frames, "run_id": run.run_id,
-            "teacher": str(cfg.teacher), "teacher_sha256": p["teacher_sha256"],
-            "config": OmegaConf.to_container(cfg, resolve=True),
-        })
-        run.flush()  # the logs hold what the checkpoint covers
-        return path
-
-    summary: dict = {}
-    bar = tqdm(total=remaining, unit="frames", desc=f"unified ({cfg.student.perception})")
-    for data in collector:
-        stats = update(p, data, iteration, cfg)
-        stats["train/dagger_beta"] = behaviour.beta
-        stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
-        iteration += 1
-        behaviour.beta = beta_at(iteration, cfg)
-        behaviour.student_mean = iteration < cfg.dagger_iters
-        collector.update_policy_weights_()
-        frames += data.numel()
-        bar.update(data.numel())
-        stats = run.log(iteration, frames, data, base, stats)
-        bar.set_postfix(im=f"{stats.get('loss/im_action', float('nan')):.3f}",
-                        sr=f"{stats.get('episode/success', float('nan')):.0f}")
-        if iteration % cfg.checkpoint.every == 0:
-            checkpoint()
-        summary = {"iteration": iteration, "frames": frames, **stats}
-        if stop.signum is not None:
-            summary["interrupted"] = stop.signum
-            break
-    bar.close()
-    collector.shutdown()
-    summary["checkpoint"] = str(checkpoint())
-    run.close()
-    return summary
+    """Run the unified training described by ``cfg`` (:func:`legoh_rl.training.runner.train`);
+    returns a summary of the last iteration (with ``interrupted``: the signal number, when
+    SIGINT/SIGTERM stopped it after a checkpoint)."""
+    return runner.train(cfg, validate, build)
 
 
 @hydra.main(config_path="config", config_name="unified", version_base=None)
 def main(cfg: DictConfig) -> None:
-    summary = train(cfg)
-    print(f"done: {summary.get('iteration')} iterations, {summary.get('frames')} frames; "
-          f"checkpoint {summary.get('checkpoint')}")
-    if summary.get("interrupted"):  # a stage script must not go on to its next stage
-        sys.exit(128 + int(summary["interrupted"]))
+    runner.finish(run_experiment(cfg, train, "unified"))
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.training.builders import env_config
-from legoh_rl.training.checkpoint import load_checkpoint
+from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
 from legoh_rl.training.evaluation import aggregate, markdown_table
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
@@ -46,11 +46,11 @@ def test_oracle_trains_then_resumes_where_it_stopped(tmp_path):
     # "interrupted": continue the same run to 96 frames; state restored exactly first
     cfg = cfg_of("oracle_ppo", TINY + ["collector.total_frames=96", f"checkpoint.dir={ck}", "checkpoint.resume=auto"])
     parts = oracle_ppo.build(cfg)
-    assert parts["iteration"] == 2 and parts["frames"] == 64
+    assert parts.iteration == 2 and parts.frames == 64
     for k, v in saved["loss"].items():
-        assert torch.equal(parts["loss"].state_dict()[k], v), k
-    assert (parts["env"].curriculum.levels == saved["env"]["curriculum"]["levels"]).all()
-    second = oracle_ppo.train(cfg, env=parts["env"])
+        assert torch.equal(parts.loss.state_dict()[k], v), k
+    assert (parts.env.curriculum.levels == saved["env"]["curriculum"]["levels"]).all()
+    second = oracle_ppo.train(cfg, env=parts.env)
     assert second["iteration"] == 3 and second["frames"] == 96
     assert load_checkpoint(ck / "last.pt")["iteration"] == 3
 
@@ -64,13 +64,13 @@ def test_resume_as_a_new_stage_takes_the_configs_coefficients_and_levels(tmp_pat
     stage = ["collector.total_frames=64", f"checkpoint.dir={ck}", "checkpoint.resume=auto", "ppo.entropy_coeff=0.002",
              "ppo.clip_epsilon=0.1", "env.levels=[1]"]
     same = oracle_ppo.build(cfg_of("oracle_ppo", TINY + stage))
-    assert (same["env"].curriculum.levels == 3).all()  # default: the curriculum state is kept
+    assert (same.env.curriculum.levels == 3).all()  # default: the curriculum state is kept
     new = oracle_ppo.build(cfg_of("oracle_ppo", TINY + stage + ["checkpoint.keep_curriculum=false"]))
-    assert (new["env"].curriculum.levels == 1).all()
+    assert (new.env.curriculum.levels == 1).all()
     for parts in (same, new):  # the loss buffers take the config's values, not the checkpoint's 0.01 / 0.2
-        assert parts["loss"].entropy_coeff.item() == pytest.approx(0.002)
-        assert parts["loss"].clip_epsilon.item() == pytest.approx(0.1)
-        assert parts["iteration"] == 1 and parts["frames"] == 32
+        assert parts.loss.entropy_coeff.item() == pytest.approx(0.002)
+        assert parts.loss.clip_epsilon.item() == pytest.approx(0.1)
+        assert parts.iteration == 1 and parts.frames == 32
 
 
 @pytest.mark.parametrize("override,message", [
@@ -300,7 +300,7 @@ def test_gait_stats_read_feet_on_the_ground_for_a_standing_robot():
 
 
 def test_the_committed_oracle_walks_lifting_its_feet():
-    """checkpoints/oracle_h1.pt (run 14, gait feedforward) steps: feet well off the ground, forward speed."""
+    """checkpoints/oracle_h1.pt (gait feedforward) steps: feet well off the ground, forward speed."""
     import gait_stats
 
     s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=4.0)
@@ -374,8 +374,8 @@ def test_route_following_can_give_the_student_the_expert_goal():
 
 
 def test_the_committed_g1_oracle_rebuilds_its_gait_clock():
-    """checkpoints/oracle_g1.pt (G1 run 3) carries its gait clock in the meta block: the eval env
-    it gets is G1's with the clock's feedforward at run 3's wider swing, and the policy acts on it."""
+    """checkpoints/oracle_g1.pt carries its gait clock in the meta block: the eval env
+    it gets is G1's with the clock's feedforward at its wider swing, and the policy acts on it."""
     from legoh_rl.training.evaluation import EvalProtocol
     from legoh_rl.training.policies import load_policy
 
@@ -444,14 +444,14 @@ def test_init_starts_a_fresh_run_from_a_policy_file(tmp_path):
     parts = oracle_ppo.build(cfg_of("oracle_ppo", TINY + GAIT + [f"checkpoint.init={slim}",
                                                                  f"checkpoint.dir={tmp_path / 'new'}"]))
     saved = load_checkpoint(slim)["networks"]
-    for k, v in parts["networks"].state_dict().items():
+    for k, v in parts.networks.state_dict().items():
         assert torch.equal(v, saved[k]), k
-    assert parts["iteration"] == 0 and parts["frames"] == 0  # a new run: counters and optimiser fresh
-    assert not parts["optim"].state_dict()["state"]
+    assert parts.iteration == 0 and parts.frames == 0  # a new run: counters and optimiser fresh
+    assert not parts.optim.state_dict()["state"]
     # a later stage of a feedforward anneal starts from the gain where the last one stopped
     later = oracle_ppo.build(cfg_of("oracle_ppo", TINY + GAIT + [f"checkpoint.init={slim}", "env.gait_feedforward=0.9",
                                                                  f"checkpoint.dir={tmp_path / 'later'}"]))
-    assert later["env"].cfg.gait_feedforward == 0.9
+    assert later.env.cfg.gait_feedforward == 0.9
 
 
 @pytest.mark.parametrize("extra,message", [
@@ -481,9 +481,13 @@ def test_feedforward_anneal_reaches_zero_and_resumes_on_its_gain(tmp_path):
     saved = load_checkpoint(ck / "last.pt")
     assert saved["meta"]["gait_feedforward"] == pytest.approx(0.5)  # gain at 64 frames
     cfg = cfg_of("oracle_ppo", TINY + GAIT + anneal + ["collector.total_frames=128"])
+    # a periodic checkpoint of an older version recorded the gain one batch behind: the schedule,
+    # not the meta, sets the gain a resume collects with
+    saved["meta"]["gait_feedforward"] = 0.75
+    save_checkpoint(ck / "last.pt", saved)
     parts = oracle_ppo.build(cfg)
-    assert parts["env"].cfg.gait_feedforward == pytest.approx(0.5)
-    oracle_ppo.train(cfg, env=parts["env"])
+    assert parts.env.cfg.gait_feedforward == pytest.approx(0.5)
+    oracle_ppo.train(cfg, env=parts.env)
     import plot_curves
 
     gains = [r["train/gait_feedforward"] for r in plot_curves.load(ck / "metrics.jsonl")]

@@ -225,17 +225,17 @@ def test_student_resume_under_another_teacher_is_refused(tmp_path):
     with pytest.raises(CheckpointError, match=r"was distilled from teacher .*t1/last.pt.*allow_new_teacher=true"):
         unified.build(student("t2", "collector.total_frames=80", "checkpoint.resume=auto"))
     p = unified.build(student("t2", "collector.total_frames=80", "checkpoint.resume=auto", "allow_new_teacher=true"))
-    assert p["frames"] == 40
-    assert unified.build(student("t1", "collector.total_frames=80", "checkpoint.resume=auto"))["frames"] == 40
+    assert p.frames == 40
+    assert unified.build(student("t1", "collector.total_frames=80", "checkpoint.resume=auto")).frames == 40
 
 
 def test_bad_action_total_survives_a_resume(tmp_path):
     parts = oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={tmp_path}"]))
-    parts["env"].bad_action_total = 7
-    state = parts["env"].state_dict()
-    parts["env"].bad_action_total = 0
-    parts["env"].load_state_dict(state)
-    assert parts["env"].bad_action_total == 7
+    parts.env.bad_action_total = 7
+    state = parts.env.state_dict()
+    parts.env.bad_action_total = 0
+    parts.env.load_state_dict(state)
+    assert parts.env.bad_action_total == 7
 
 
 def test_env_takes_bfloat16_actions_and_names_a_missing_action():

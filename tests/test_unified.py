@@ -39,19 +39,19 @@ def tiny(teacher, ck, *extra):
 
 def test_student_step_trains_tcvit_with_ppo_imitation_and_hlm(teacher, tmp_path):
     p = unified.build(tiny(teacher, tmp_path))
-    before = [q.detach().clone() for q in p["student"].perception.parameters()]
-    vae_before = [q.detach().clone() for q in p["vae"].parameters()]
+    before = [q.detach().clone() for q in p.student.perception.parameters()]
+    vae_before = [q.detach().clone() for q in p.vae.parameters()]
     with torch.no_grad():  # as in a Collector
-        collector_data = p["env"].rollout(10, p["student"].policy, break_when_any_done=False)
+        collector_data = p.collect_env.rollout(10, p.student.policy, break_when_any_done=False)
     stats = unified.update(p, collector_data, iteration=1, cfg=tiny(teacher, tmp_path))
     assert stats["train/phase_rl"] == 1.0 and stats["train/hlm_on"] == 1.0
     for key in ("loss/im_latent", "loss/im_action", "loss/hlm_ts", "loss/objective", "loss/critic"):
         assert key in stats and torch.isfinite(torch.tensor(stats[key])), key
     # gradients reached TC-ViT through PPO, L_im and L_hie
-    changed = [not torch.equal(a, b) for a, b in zip(before, p["student"].perception.parameters(), strict=True)]
+    changed = [not torch.equal(a, b) for a, b in zip(before, p.student.perception.parameters(), strict=True)]
     assert sum(changed) > 0.9 * len(changed)
     # the VAE learns only from its own loss (L_rec on teacher actions)
-    assert any(not torch.equal(a, b) for a, b in zip(vae_before, p["vae"].parameters(), strict=True))
+    assert any(not torch.equal(a, b) for a, b in zip(vae_before, p.vae.parameters(), strict=True))
 
 
 @pytest.mark.parametrize("extra", [[], ["hlm.enabled=false"], ["hlm.vanilla_vae=true", "student.perception=vanilla"]])
@@ -61,9 +61,9 @@ def test_unified_runs_end_to_end_and_resumes(teacher, tmp_path, extra):
     state = load_checkpoint(tmp_path / "last.pt")
     assert state["meta"]["kind"] == "student" and state["iteration"] == 2
     resumed = unified.build(tiny(teacher, tmp_path, "collector.total_frames=120", "checkpoint.resume=auto", *extra))
-    assert resumed["iteration"] == 2 and resumed["frames"] == 80
+    assert resumed.iteration == 2 and resumed.frames == 80
     for k, v in state["perception"].items():
-        assert torch.equal(resumed["student"].perception.state_dict()[k], v)
+        assert torch.equal(resumed.student.perception.state_dict()[k], v)
 
 
 def test_evaluate_a_student_checkpoint(teacher, tmp_path):
@@ -95,9 +95,9 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
     from legoh_rl.training.distill import DAggerMixture
 
     p = unified.build(tiny(teacher, tmp_path))
-    mix = DAggerMixture(p["student"].policy, p["teacher"], seed=0)
-    td = p["env"].reset()
-    expected = p["teacher"].label(td.clone())["action_tea"]
+    mix = DAggerMixture(p.student.policy, p.teacher, seed=0)
+    td = p.collect_env.reset()
+    expected = p.teacher.label(td.clone())["action_tea"]
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):  # as the Collector samples
@@ -109,7 +109,7 @@ def test_dagger_mixture_executes_the_teachers_action_with_probability_beta(teach
         assert not out["teacher_acted"].any() and not torch.allclose(out["action"], expected)
         # the student's action is what the student policy alone writes (same sampling seed)
         torch.manual_seed(3)
-        alone = p["student"].policy(td.clone())["action"]
+        alone = p.student.policy(td.clone())["action"]
         torch.manual_seed(3)
         assert torch.equal(mix(td.clone())["action"], alone)
         # in the imitation phase the student executes its mean action, not a sample
@@ -132,10 +132,10 @@ def test_student_starts_from_the_teachers_action_std(teacher, tmp_path):
     head = t.networks.actor.head
     assert torch.allclose(t.action_std, head.log_std.exp())  # no ceiling on this teacher
     p = unified.build(tiny(teacher, tmp_path))
-    student_std = p["student"].actor.module[0].module.head.log_std.exp()
+    student_std = p.student.actor.module[0].module.head.log_std.exp()
     assert torch.allclose(student_std, torch.full_like(student_std, float(t.action_std.mean())))
     p = unified.build(tiny(teacher, tmp_path, "student.init_std=0.3"))
-    assert torch.allclose(p["student"].actor.module[0].module.head.log_std.exp(), torch.tensor(0.3))
+    assert torch.allclose(p.student.actor.module[0].module.head.log_std.exp(), torch.tensor(0.3))
 
 
 def test_short_beta_decay_leaves_a_pure_dagger_stretch(teacher, tmp_path):
@@ -155,10 +155,10 @@ def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
                                                  "ppo.num_epochs=1", f"checkpoint.dir={ck}", "env.gait_period=0.7",
                                                  "env.gait_feedforward=1.0"]))
     p = unified.build(tiny(ck / "last.pt", tmp_path / "student"))  # the student config names no clock
-    assert p["base"].cfg.gait_period == 0.7 and p["meta"]["gait_period"] == 0.7
+    assert p.env.cfg.gait_period == 0.7 and p.meta["gait_period"] == 0.7
     # the teacher's actions are residuals on the clock's swing: the student acts in the same space
-    assert p["base"].cfg.gait_feedforward == 1.0 and p["meta"]["gait_feedforward"] == 1.0
-    assert p["base"].observation_spec["proprio"].shape[-1] == 39
+    assert p.env.cfg.gait_feedforward == 1.0 and p.meta["gait_feedforward"] == 1.0
+    assert p.env.observation_spec["proprio"].shape[-1] == 39
     out = unified.train(tiny(ck / "last.pt", tmp_path / "student", "collector.total_frames=40"))
     assert out["iteration"] == 1
     # and its evaluation env is rebuilt with the same clock from the student checkpoint's meta
@@ -172,17 +172,17 @@ def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, t
     cfg = tiny(teacher, tmp_path, "dagger_iters=5", "dagger_replay.capacity=25", "dagger_replay.batch_size=8",
                "dagger_replay.steps=4")
     p = unified.build(cfg)
-    assert unified.build(tiny(teacher, tmp_path))["replay"] is None  # off by default
+    assert unified.build(tiny(teacher, tmp_path)).replay is None  # off by default
     with pytest.raises(ValueError, match=r"dagger_replay.capacity must be >= 0 \(0: off\), got -1"):
         unified.build(tiny(teacher, tmp_path, "dagger_replay.capacity=-1"))
     with pytest.raises(ValueError, match="LocomotionReplay steps must be >= 1, got 0"):
         unified.build(tiny(teacher, tmp_path, "dagger_replay.capacity=8", "dagger_replay.steps=0"))
     for it in range(2):
         with torch.no_grad():
-            data = p["env"].rollout(10, p["student"].policy, break_when_any_done=False)
+            data = p.collect_env.rollout(10, p.student.policy, break_when_any_done=False)
         stats = unified.update(p, data, iteration=it, cfg=cfg)
         assert torch.isfinite(torch.tensor(stats["loss/replay_im_action"]))
-    assert len(p["replay"]) == 25  # 2 x 40 steps through a 25-step window
+    assert len(p.replay) == 25  # 2 x 40 steps through a 25-step window
     # the window holds the teacher's labels of the latest steps
-    assert torch.equal(p["replay"].buffer.storage[:25]["action_tea"].sort(0).values,
+    assert torch.equal(p.replay.buffer.storage[:25]["action_tea"].sort(0).values,
                        data["action_tea"].reshape(-1, data["action_tea"].shape[-1])[-25:].sort(0).values)

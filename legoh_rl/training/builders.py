@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
@@ -46,29 +47,28 @@ def require_layers(name: str, layers) -> None:
 
 
 def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
-    """A :class:`HikingEnvConfig` from a recipe's ``env`` section (validated, nothing built)."""
+    """A :class:`HikingEnvConfig` from a recipe's ``env`` section (validated, nothing built).
+
+    Keys the section leaves out (or sets to null) keep the dataclass's defaults, which are the only
+    place env defaults are written. ``domain_rand: false`` and ``curriculum: false`` switch those off.
+    """
     get_robot_spec(cfg["robot"])  # unknown robot: clear error before any work
-    categories = validate_categories(cfg.get("categories", HikingEnvConfig.categories))
+    defaults = {f.name: f.default for f in dataclasses.fields(HikingEnvConfig) if f.default is not dataclasses.MISSING}
+
+    def value(name: str, cast):
+        v = cfg.get(name)
+        return defaults[name] if v is None else cast(v)
+
     kwargs = dict(
-        robot=cfg["robot"],
-        num_envs=int(cfg["num_envs"]),
-        mode=mode,
-        categories=categories,
-        levels=tuple(int(v) for v in cfg.get("levels", (0,))),
-        variants=int(cfg.get("variants", 2)),
-        num_threads=cfg.get("num_threads"),
-        seed=int(cfg.get("seed", 0)),
-        episode_length_s=float(cfg.get("episode_length_s", 20.0)),
-        cmd_speed=float(cfg.get("cmd_speed", 0.8)),
-        gait_period=float(cfg.get("gait_period", 0.0)),
-        gait_stance=float(cfg.get("gait_stance", 0.55)),
-        gait_amplitude=float(cfg.get("gait_amplitude", 0.25)),
-        gait_feedforward=float(cfg.get("gait_feedforward", 0.0)),
+        robot=cfg["robot"], num_envs=int(cfg["num_envs"]), mode=mode, num_threads=cfg.get("num_threads"),
+        categories=validate_categories(cfg.get("categories") or defaults["categories"]),
+        levels=value("levels", lambda v: tuple(int(x) for x in v)),
+        category_weights=value("category_weights", lambda v: tuple(float(w) for w in v)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
-        feet_edge_from_level=int(cfg.get("feet_edge_from_level", 4)),
+        **{name: value(name, int) for name in ("variants", "seed", "feet_edge_from_level")},
+        **{name: value(name, float) for name in ("episode_length_s", "cmd_speed", "gait_period", "gait_stance",
+                                                 "gait_amplitude", "gait_feedforward")},
     )
-    if cfg.get("category_weights") is not None:
-        kwargs["category_weights"] = tuple(float(w) for w in cfg["category_weights"])
     if not cfg.get("domain_rand", True):
         kwargs["domain_rand"] = DomainRandConfig.off()
     if not cfg.get("curriculum", True):

@@ -145,11 +145,15 @@ def resume_path(resume: str | None, run_dir: str | os.PathLike) -> Path | None:
 POLICY_KEYS = ("meta", "oracle_config", "networks", "perception", "actor", "config", "iteration", "frames")
 
 
-def export_policy(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
+def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: dict | None = None) -> Path:
     """Write a slim copy of a training checkpoint: the policy without optimisers, env or RNG state.
 
     The result loads wherever the full checkpoint does for inference (``evaluate.py``, or as the
-    teacher of ``unified.py``), and is small enough to commit.
+    teacher of ``unified.py``), and is small enough to commit. ``provenance`` (``experiment``,
+    ``stage``) is written into its meta block, for checkpoints trained before runs recorded it.
     """
     state = load_checkpoint(src)
-    return save_checkpoint(dst, {k: state[k] for k in POLICY_KEYS if k in state})
+    slim = {k: state[k] for k in POLICY_KEYS if k in state}
+    if provenance:
+        slim["meta"] = {**slim.get("meta", {}), **provenance}
+    return save_checkpoint(dst, slim)

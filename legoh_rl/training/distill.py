@@ -13,9 +13,9 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor, make_oracle_critic
 from legoh_rl.training.checkpoint import load_checkpoint
+from legoh_rl.training.policies import oracle_networks
 
 __all__ = ["Teacher", "DAggerMixture", "dagger_beta", "student_pass", "STUDENT_ACTION_KEY"]
 
@@ -42,8 +42,7 @@ class Teacher:
         if meta.get("robot") != robot:
             raise ValueError(f"{path}: robot: checkpoint has {meta.get('robot')!r}, this run needs {robot!r}")
         self.meta = meta
-        self.networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
-        self.networks.load_state_dict(state["networks"])
+        self.networks = oracle_networks(state)
         self.networks.requires_grad_(False)
         self.networks.eval()
         self.actor = make_oracle_actor(self.networks)

@@ -11,8 +11,9 @@ from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor
 from legoh_rl.training.builders import gait_kwargs, policy_meta
 from legoh_rl.training.checkpoint import check_meta, load_checkpoint
+from legoh_rl.training.student import make_student, student_env
 
-__all__ = ["ZeroPolicy", "load_policy", "load_cell_policy", "eval_env"]
+__all__ = ["ZeroPolicy", "load_policy", "load_cell_policy", "load_student", "oracle_networks", "eval_env"]
 
 
 class ZeroPolicy(TensorDictModuleBase):
@@ -40,6 +41,25 @@ def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, d
     return HikingEnv(cfg, trails=trails)
 
 
+def oracle_networks(state: dict) -> OracleNetworks:
+    """The trained networks of an oracle checkpoint (its ``oracle_config`` and ``networks``)."""
+    networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
+    networks.load_state_dict(state["networks"])
+    return networks
+
+
+def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint"):
+    """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol``."""
+    meta = state["meta"]
+    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails,
+                    **gait_kwargs(meta))
+    check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
+    student = make_student(base, meta["perception"], meta["preset"])
+    student.perception.load_state_dict(state["perception"])
+    student.actor.load_state_dict(state["actor"])
+    return student_env(base, student), student.policy, f"student ({meta['perception']})"
+
+
 def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2, seed: int = 0,
                 num_threads=None, trails=None):
     """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline.
@@ -58,12 +78,8 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
     if kind == "oracle":
         env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, **gait_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), checkpoint)
-        networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
-        networks.load_state_dict(state["networks"])
-        return env, make_oracle_actor(networks), "oracle"
+        return env, make_oracle_actor(oracle_networks(state)), "oracle"
     if kind == "student":
-        from legoh_rl.training.student import load_student
-
         return load_student(state, protocol, variants, seed, num_threads, trails=trails, path=checkpoint)
     raise ValueError(f"{checkpoint}: unknown checkpoint kind {kind!r}; expected 'oracle' or 'student'")
 

@@ -23,7 +23,7 @@ from legoh_rl.modules.locomotion import make_locomotion_actor
 from legoh_rl.modules.perception import make_perception
 from legoh_rl.transforms import DepthHistory, GoalTiling, PerceptionHold
 
-__all__ = ["StudentPolicy", "make_student", "student_env", "load_student"]
+__all__ = ["StudentPolicy", "make_student", "student_env"]
 
 
 class StudentPolicy:
@@ -77,19 +77,3 @@ def student_env(env: HikingEnv, student: StudentPolicy) -> TransformedEnv:
         transforms.append(primers)
     transforms.append(student.hold.make_tensordict_primer())
     return TransformedEnv(env, Compose(*transforms))
-
-
-def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint"):
-    """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol``."""
-    from legoh_rl.training.builders import gait_kwargs, policy_meta
-    from legoh_rl.training.checkpoint import check_meta
-    from legoh_rl.training.policies import eval_env
-
-    meta = state["meta"]
-    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails,
-                    **gait_kwargs(meta))
-    check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
-    student = make_student(base, meta["perception"], meta["preset"])
-    student.perception.load_state_dict(state["perception"])
-    student.actor.load_state_dict(state["actor"])
-    return student_env(base, student), student.policy, f"student ({meta['perception']})"

@@ -1,0 +1,169 @@
+"""Staged schedules as data (legoh_rl/training/stages.py) and the committed experiments: stages run
+in order, each resuming the last, finished ones are skipped, an interrupted one stops the chain;
+every committed experiment expands to the settings its committed checkpoint was trained with."""
+
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf, open_dict
+
+from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
+from legoh_rl.training.stages import (
+    Stage,
+    parse_stages,
+    run_experiment,
+    stage_config,
+    stage_settings,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+RECIPES = ROOT / "recipes"
+sys.path.insert(0, str(RECIPES))
+
+import oracle_ppo  # noqa: E402
+
+TINY = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1",
+        "collector.steps_per_env=8", "ppo.num_epochs=1", "ppo.num_minibatches=2", "logger.backend=csv"]
+EXPERIMENTS = sorted((RECIPES / "config" / "experiment").glob("*.yaml"))
+
+
+def cfg_of(name, overrides, stages=None):
+    with initialize_config_dir(config_dir=str(RECIPES / "config"), version_base=None):
+        cfg = compose(config_name=name, overrides=overrides)
+    if stages is not None:
+        with open_dict(cfg):
+            cfg.stages = stages
+    return cfg
+
+
+TWO = {"walk": {"frames": 64, "overrides": {"ppo": {"entropy_coeff": 0.002}}},
+       "start": {"frames": 32, "overrides": {"env": {"cmd_speed": 0.3}}}}
+
+
+def test_stages_are_ordered_by_their_end_and_null_drops_one():
+    stages = parse_stages({"b": {"frames": 20}, "a": {"frames": 10, "keep_curriculum": False}, "c": None})
+    assert stages == [Stage("a", 10, {}, False), Stage("b", 20, {}, True)]
+    assert parse_stages(None) == []
+
+
+@pytest.mark.parametrize("raw,message", [
+    ({"bad name": {"frames": 1}}, "stage name 'bad name'"),
+    ({"a": {"frames": 0}}, r"stage a: frames must be a positive integer .* got 0"),
+    ({"a": {"frames": 2.5}}, "got 2.5"),
+    ({"a": {"frames": 5}, "b": {"frames": 5}}, r"end at frames \[5, 5\]"),
+    ({"a": {"frames": 5, "overides": {}}}, r"stage a: unknown keys \['overides'\]"),
+    ({"a": {"frames": 5, "overrides": [1]}}, "stage a: overrides must be a mapping"),
+    ([1, 2], "stages must be a mapping"),
+])
+def test_bad_stages_are_refused_by_name(raw, message):
+    with pytest.raises(ValueError, match=message):
+        parse_stages(raw)
+
+
+def fake_train(calls, interrupt_at=None):
+    """A recipe's train stand-in: records the config, writes a last.pt at the stage's end."""
+    def train(cfg):
+        calls.append(cfg)
+        frames = int(cfg.collector.total_frames)
+        if cfg.stage_name == interrupt_at:
+            frames //= 2
+        state = {"frames": frames, "meta": {"kind": "oracle", "stage": cfg.stage_name}, "networks": {}}
+        save_checkpoint(Path(cfg.checkpoint.dir) / "last.pt", state)
+        return {"frames": frames, **({"interrupted": 15} if cfg.stage_name == interrupt_at else {})}
+    return train
+
+
+def test_stages_chain_resume_skip_and_stop_on_a_signal(tmp_path):
+    cfg = cfg_of("oracle_ppo", TINY + [f"checkpoint.dir={tmp_path}", "checkpoint.init=/some/policy.pt"], TWO)
+    calls = []
+    out = run_experiment(cfg, fake_train(calls, interrupt_at="walk"), "oracle_ppo")
+    assert out["interrupted"] == 15 and out["stage"] == "walk" and "policy" not in out
+    first, second = calls
+    assert first.checkpoint.dir == str(tmp_path / "stage1-start") and first.checkpoint.resume is None
+    assert first.checkpoint.init == "/some/policy.pt" and first.collector.total_frames == 32
+    assert first.env.cmd_speed == 0.3 and first.ppo.entropy_coeff == cfg.ppo.entropy_coeff
+    assert second.checkpoint.dir == str(tmp_path / "stage2-walk")
+    assert second.checkpoint.resume == str(tmp_path / "stage1-start" / "last.pt") and second.checkpoint.init is None
+    assert second.env.cmd_speed == cfg.env.cmd_speed and second.ppo.entropy_coeff == 0.002  # only its own overrides
+    assert "stages" not in second and second.stage_name == "walk"
+    # the same command again: stage 1 is done, stage 2 goes on from its own checkpoint
+    calls.clear()
+    out = run_experiment(cfg, fake_train(calls), "oracle_ppo")
+    assert [c.stage_name for c in calls] == ["walk"] and calls[0].checkpoint.resume == str(tmp_path / "stage2-walk" / "last.pt")
+    assert Path(out["policy"]) == tmp_path / "policy.pt" and load_checkpoint(out["policy"])["meta"]["stage"] == "walk"
+    calls.clear()
+    run_experiment(cfg, fake_train(calls), "oracle_ppo")
+    assert calls == []  # everything done: nothing trains, the policy is exported again
+
+
+def test_stages_refuse_an_explicit_resume_and_a_missing_previous_stage(tmp_path):
+    cfg = cfg_of("oracle_ppo", TINY + [f"checkpoint.dir={tmp_path}", "checkpoint.resume=/x/last.pt"], TWO)
+    with pytest.raises(ValueError, match="resumes its stages on its own"):
+        run_experiment(cfg, fake_train([]), "oracle_ppo")
+    cfg = cfg_of("oracle_ppo", TINY + [f"checkpoint.dir={tmp_path}"], TWO)
+    with pytest.raises(FileNotFoundError, match=r"stage walk starts from stage start's checkpoint"):
+        stage_config(cfg, parse_stages(cfg.stages), 1)
+
+
+def test_an_experiment_for_another_recipe_is_refused():
+    cfg = cfg_of("unified", ["experiment=oracle_h1_trails"])
+    with pytest.raises(ValueError, match=r"experiment 'oracle_h1_trails' is for recipes/oracle_ppo.py, not recipes/unified.py"):
+        run_experiment(cfg, fake_train([]), "unified")
+
+
+def test_a_staged_oracle_trains_every_stage_and_exports_its_policy(tmp_path):
+    cfg = cfg_of("oracle_ppo", TINY + [f"checkpoint.dir={tmp_path}", "experiment_name=tiny"], TWO)
+    out = run_experiment(cfg, oracle_ppo.train, "oracle_ppo")
+    one, two = load_checkpoint(tmp_path / "stage1-start" / "last.pt"), load_checkpoint(tmp_path / "stage2-walk" / "last.pt")
+    assert (one["frames"], two["frames"]) == (32, 64) and two["iteration"] == 2
+    assert one["config"]["env"]["cmd_speed"] == 0.3 and two["config"]["ppo"]["entropy_coeff"] == 0.002
+    assert two["meta"]["experiment"] == "tiny" and two["meta"]["stage"] == "walk"
+    policy = load_checkpoint(out["policy"])
+    assert "optim" not in policy and policy["meta"] == two["meta"]
+    for k, v in policy["networks"].items():
+        assert torch.equal(v, two["networks"][k]), k
+    again = run_experiment(cfg, oracle_ppo.train, "oracle_ppo")  # finished: nothing more
+    assert load_checkpoint(tmp_path / "stage2-walk" / "last.pt")["frames"] == 64 and again["policy"] == out["policy"]
+
+
+@pytest.mark.parametrize("path", EXPERIMENTS, ids=[p.stem for p in EXPERIMENTS])
+def test_every_experiment_names_itself_and_its_recipe(path):
+    recipe = OmegaConf.load(path).get("recipe")
+    assert recipe in ("oracle_ppo", "unified"), f"{path.name} names no recipe"
+    cfg = cfg_of(recipe, [f"experiment={path.stem}"])
+    assert cfg.experiment_name == path.stem and cfg.recipe == recipe
+    for stage in parse_stages(cfg.get("stages")):
+        stage_settings(cfg, stage)  # every stage's overrides name existing settings
+
+
+# (experiment, committed checkpoint): the experiment's last stage trains with the recorded settings
+RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
+            ("oracle_g1_randommix", "checkpoints/oracle_g1.pt"),
+            ("student_h1_randommix", "checkpoints/student_h1.pt")]
+SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
+            "unified": ("env", "ppo", "student", "dagger_iters", "dagger_beta0", "dagger_decay_iters", "dagger_epochs",
+                        "dagger_replay", "imitation", "hlm", "torch_threads")}
+
+
+@pytest.mark.parametrize("name,checkpoint", RECORDED, ids=[r[0] for r in RECORDED])
+def test_committed_experiments_expand_to_the_recorded_settings(name, checkpoint):
+    recorded = load_checkpoint(ROOT / checkpoint)["config"]
+    cfg = cfg_of(OmegaConf.load(RECIPES / "config" / "experiment" / f"{name}.yaml").recipe, [f"experiment={name}"])
+    final = OmegaConf.to_container(stage_settings(cfg, parse_stages(cfg.stages)[-1]), resolve=True)
+    assert final["collector"]["total_frames"] == recorded["collector"]["total_frames"]
+    for section in SECTIONS[cfg.recipe]:
+        want, have = recorded[section], final[section]
+        if isinstance(want, dict):  # keys added to the config after the run are not in its record
+            have = {k: have[k] for k in want}
+        assert have == want, section
+
+
+def test_every_committed_checkpoint_names_the_experiment_that_made_it():
+    committed = sorted((ROOT / "checkpoints").glob("*.pt"))
+    assert len(committed) >= 4
+    for path in committed:
+        name = load_checkpoint(path)["meta"].get("experiment")
+        assert name and (RECIPES / "config" / "experiment" / f"{name}.yaml").is_file(), path.name
