@@ -49,6 +49,7 @@ from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
 from legoh_rl.training.schedules import check_anneal, feedforward_gain
 from legoh_rl.training.stages import run_experiment
+from legoh_rl.training.stats import explained_variance
 
 register_configs()  # the env group's defaults, read from HikingEnvConfig
 
@@ -135,6 +136,7 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
             count += 1
     stats = {k: v / count for k, v in sums.items()}
     stats["train/lr"] = lr
+    stats["train/explained_variance"] = explained_variance(data["state_value"], data["value_target"])
     stats["train/action_std"] = float(flat["scale"].mean())
     return stats
 

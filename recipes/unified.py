@@ -58,6 +58,7 @@ from legoh_rl.training.locomotion_replay import LocomotionReplay
 from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
 from legoh_rl.training.stages import run_experiment
+from legoh_rl.training.stats import explained_variance
 from legoh_rl.training.student import make_student, student_env
 
 PERCEPTIONS = ("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")
@@ -273,6 +274,7 @@ def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str
         stats["loss/replay_im_action"] = p.replay.train(p.optim, cfg.ppo.max_grad_norm)
     if rl:
         stats["train/lr"] = p.sched.step(stats["train/kl"])
+        stats["train/explained_variance"] = explained_variance(data["state_value"], data["value_target"])
     stats["train/phase_rl"] = float(rl)
     stats["train/hlm_on"] = float(use_hlm)
     return stats

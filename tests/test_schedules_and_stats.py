@@ -54,4 +54,6 @@ def test_curriculum_stats_mean_level_per_category():
     levels = np.array([0, 4, 2, 1, 3])
     cats = np.array([0, 0, 1, 1, 1])
     out = curriculum_stats(levels, cats, ("randommix", "ditch", "gap"))
-    assert out == {"curriculum/randommix": 2.0, "curriculum/ditch": 2.0}
+    means = {k: v for k, v in out.items() if "share" not in k}
+    assert means == {"curriculum/randommix": 2.0, "curriculum/ditch": 2.0}
+    assert [out[f"curriculum/share_level{k}"] for k in range(5)] == [0.2] * 5

@@ -10,6 +10,12 @@ Registered ids: ``LegoH/Hike-H1-v0`` and ``LegoH/Hike-G1-v0`` (oracle observatio
 Observations are a ``Dict`` of float32 boxes with the env's keys; ``info`` carries the
 weighted reward terms and, when an episode ends, its metrics. For training, use the batched
 TorchRL env: this wrapper exists for tooling that speaks Gymnasium.
+
+Rendering: ``gymnasium.make(id, render_mode="rgb_array")`` makes ``env.render()`` return the
+robot as a (height, width, 3) uint8 frame (default 240 x 320) from a camera tracking its torso;
+``width``, ``height`` and ``camera`` are keyword arguments of ``make`` (see
+:meth:`HikingEnv.render <legoh_rl.envs.hiking.HikingEnv.render>`). Gymnasium's wrappers then work
+as usual, e.g. ``gymnasium.wrappers.RecordVideo``.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import torch
 
 from legoh_rl.envs.config import HikingEnvConfig
 from legoh_rl.envs.hiking import HikingEnv
+from legoh_rl.envs.render import DEFAULT_HEIGHT, DEFAULT_WIDTH
 
 __all__ = ["HikingGymEnv"]
 
@@ -35,14 +42,33 @@ class HikingGymEnv(gym.Env):
         robot: ``"h1"`` or ``"g1"``.
         mode: ``"oracle"``, ``"student"`` or ``"eval"``.
         trails: optional terrain (see :class:`~legoh_rl.envs.hiking.TrailSource`).
+        render_mode: ``None`` (no frames) or ``"rgb_array"``: :meth:`render` returns a
+            (height, width, 3) uint8 frame.
+        width: frame width, pixels.
+        height: frame height, pixels.
+        camera: ``None`` (tracks the torso), a :class:`~legoh_rl.envs.render.TrackingCamera`, a
+            model camera's name or id, or a ``mujoco.MjvCamera``.
         **cfg: other :class:`~legoh_rl.envs.config.HikingEnvConfig` fields.
+
+    ``metadata["render_fps"]`` is the control rate (50 with the default timestep and decimation):
+    one frame per step plays at real time.
     """
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 50}
 
-    def __init__(self, robot: str = "h1", mode: str = "oracle", trails=None, **cfg) -> None:
+    def __init__(self, robot: str = "h1", mode: str = "oracle", trails=None, render_mode: str | None = None,
+                 width: int = DEFAULT_WIDTH, height: int = DEFAULT_HEIGHT, camera=None, **cfg) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        for name, value in (("width", width), ("height", height)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+                raise ValueError(f"{name} must be a positive integer number of pixels, got {value!r}")
         config = replace(HikingEnvConfig(), robot=robot, mode=mode, num_envs=1, **cfg)
         self.env = HikingEnv(config, trails=trails)
+        self.render_mode = render_mode
+        self.render_size = (int(height), int(width))
+        self.camera = camera
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.env.dt}
         spec = self.env.observation_spec
         spaces = {}
         for key in _OBS_KEYS:
@@ -76,6 +102,25 @@ class HikingGymEnv(gym.Env):
         if terminated or truncated:
             info["episode"] = {k: float(v[0, 0]) for k, v in nxt["episode"].items()}
         return self._obs(nxt), reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """The robot now, as (height, width, 3) uint8 RGB with ``render_mode="rgb_array"``.
+
+        Returns None (with Gymnasium's warning) when the env was made without a render mode.
+
+        Raises:
+            RenderingUnavailableError: no OpenGL context (names MUJOCO_GL and what to install).
+        """
+        if self.render_mode is None:
+            gym.logger.warn("render() was called without a render mode; make the env with "
+                            "gymnasium.make(..., render_mode='rgb_array') to get frames")
+            return None
+        height, width = self.render_size
+        return self.env.render(0, width=width, height=height, camera=self.camera)
+
+    def close(self) -> None:
+        """Free the renderer's OpenGL context, if any."""
+        self.env.close(raise_if_closed=False)
 
 
 def _as_td(env: HikingEnv, action: np.ndarray):

@@ -20,6 +20,7 @@ Keys (docs/observations.md has every layout and scale; docs/keys.md the contract
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from typing import Protocol
 
 import mujoco
@@ -37,6 +38,7 @@ from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.randomization import DomainRandConfig, DomainRandomizer
+from legoh_rl.envs.render import DEFAULT_HEIGHT, DEFAULT_WIDTH, TrackingCamera, WorldRenderer
 from legoh_rl.envs.rewards import RewardState, compute_rewards, reward_weights
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
 from legoh_rl.envs.sensors import (
@@ -116,6 +118,10 @@ class HikingEnv(EnvBase):
     sends) re-spawns and re-reads only the masked worlds; the other rows of its output are the
     observations of the last step, unchanged (the env keeps them), so a reset costs in proportion
     to the worlds it resets.
+
+    Rendering: :meth:`render` returns uint8 RGB frames of chosen worlds, (N, H, W, 3) by default,
+    from a camera that tracks each robot's torso, so torchrl's ``PixelRenderTransform`` and
+    ``VideoRecorder`` work on this env as they are (docs/rendering.md).
 
     Example:
         >>> env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=8))
@@ -668,6 +674,82 @@ class HikingEnv(EnvBase):
             raise ValueError(f"category indices must be among {known.tolist()}, got {np.unique(categories).tolist()}")
         self.curriculum.levels[:] = levels
         self.world_category[:] = categories
+
+    # ------------------------------------------------------------------ rendering
+    def render(
+        self,
+        worlds: int | Sequence[int] | np.ndarray | torch.Tensor | None = None,
+        width: int = DEFAULT_WIDTH,
+        height: int = DEFAULT_HEIGHT,
+        camera: TrackingCamera | str | int | mujoco.MjvCamera | None = None,
+    ) -> np.ndarray:
+        """RGB frames of worlds at their current state (MuJoCo's off-screen ``mujoco.Renderer``).
+
+        Args:
+            worlds: ``None`` for every world, one world index, or a sequence (or (N,) bool mask)
+                of worlds.
+            width: frame width, pixels.
+            height: frame height, pixels.
+            camera: ``None`` for a camera that tracks each world's torso (3.5 m away, 20 degrees
+                down); a :class:`~legoh_rl.envs.render.TrackingCamera` to set its distance,
+                elevation, azimuth or body; a model camera's name or id (``"head_depth"`` is the
+                robot's head camera); or a ``mujoco.MjvCamera``.
+
+        Returns:
+            uint8 RGB frames: (n, height, width, 3) for ``None`` (n = N, so torchrl's
+            ``PixelRenderTransform`` writes them as a ``pixels`` entry of the batch) or a
+            sequence (n = its length), (height, width, 3) for one int world.
+
+        Raises:
+            ValueError: a world index out of [0, N) or a bad size or camera.
+            RenderingUnavailableError: no OpenGL context; it names MUJOCO_GL and what to install.
+
+        The OpenGL context is made on the first call and kept (one per frame size) until
+        :meth:`close`. Without a display set ``MUJOCO_GL=egl`` before importing mujoco.
+
+        Example:
+            >>> frames = env.render()             # (N, 240, 320, 3) uint8
+            >>> frame = env.render(0, 160, 120)   # (120, 160, 3)
+        """
+        ids, single = self._world_ids(worlds)
+        renderer = self.__dict__.get("_renderer")
+        if renderer is None or (renderer.width, renderer.height) != (width, height):
+            if renderer is not None:
+                renderer.close()
+            self.__dict__["_renderer"] = None  # a plain attribute, not an nn.Module entry
+            renderer = WorldRenderer(self.worlds, self.built.torso_body_id, height=height, width=width)
+            self.__dict__["_renderer"] = renderer
+        frames = renderer.render(ids, camera)
+        return frames[0] if single else frames
+
+    def _world_ids(self, worlds) -> tuple[np.ndarray, bool]:
+        """(n,) world indices of ``worlds`` (see :meth:`render`) and whether it was one int."""
+        N = self.cfg.num_envs
+        if worlds is None:
+            return np.arange(N), False
+        if isinstance(worlds, torch.Tensor):
+            worlds = worlds.detach().cpu().numpy()
+        single = isinstance(worlds, (int, np.integer)) or (isinstance(worlds, np.ndarray) and worlds.ndim == 0)
+        arr = np.asarray(worlds)
+        if arr.dtype == bool:
+            if arr.shape != (N,):
+                raise ValueError(f"a world mask must have shape ({N},), got {arr.shape}")
+            return np.flatnonzero(arr), False
+        if arr.size == 0:
+            return np.zeros(0, dtype=np.int64), False
+        if not np.issubdtype(arr.dtype, np.integer):
+            raise ValueError(f"worlds must be None, an int, a sequence of ints or a bool mask, got {worlds!r}")
+        ids = arr.astype(np.int64).reshape(-1)
+        if ids.min() < 0 or ids.max() >= N:
+            raise ValueError(f"world indices must lie in [0, {N}), got {ids.tolist()}")
+        return ids, bool(single)
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        """Free the renderer's OpenGL context, if any, and mark the env closed."""
+        renderer = self.__dict__.pop("_renderer", None)
+        if renderer is not None:
+            renderer.close()
+        super().close(raise_if_closed=raise_if_closed)
 
     # ------------------------------------------------------------------ checkpoint state
     def state_dict(self) -> dict:

@@ -7,7 +7,21 @@ import warnings
 
 from torchrl.record.loggers import CSVLogger, Logger
 
-__all__ = ["make_logger", "MetricsFile", "trim_csv_logs"]
+__all__ = ["make_logger", "runtime_versions", "MetricsFile", "trim_csv_logs"]
+
+
+def runtime_versions() -> dict[str, str]:
+    """Python and the versions of the packages a run depends on (recorded with its config)."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in ("torch", "torchrl", "tensordict", "mujoco", "legoh-rl"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = "absent"
+    return out
 
 
 def make_logger(
@@ -40,8 +54,11 @@ def make_logger(
             from torchrl.record.loggers.wandb import WandbLogger
 
             kwargs = {"resume": "allow", "id": run_id} if run_id else {}
+            # torchrl would write its package list over the config's "env" section (the env
+            # settings runs are filtered by); the versions go under "runtime" instead
             logger = WandbLogger(exp_name=exp_name, offline=not online, save_dir=log_dir, project=project,
-                                 config=config or {}, **kwargs)
+                                 config={**(config or {}), "runtime": runtime_versions()},
+                                 log_env_packages=False, **kwargs)
             return logger
         except Exception as err:  # wandb missing, broken, or refused: keep training, log to CSV
             warnings.warn(f"wandb unusable ({type(err).__name__}: {err}); logging to CSV in {log_dir}", stacklevel=2)

@@ -11,7 +11,9 @@ from tensordict import TensorDictBase
 from legoh_rl.training.logging import MetricsFile, make_logger, trim_csv_logs
 from legoh_rl.training.stats import (
     curriculum_stats,
+    ending_stats,
     episode_stats,
+    return_stats,
     reward_term_stats,
     split_episode_stats,
 )
@@ -51,6 +53,8 @@ class RunLog:
         """Add reward-term, episode, curriculum and env figures to ``stats``; queue them when due."""
         stats.update(reward_term_stats(data))
         stats.update(episode_stats(data))
+        stats.update(return_stats(data))
+        stats.update(ending_stats(data))
         categories = tuple(env.trails.categories)
         stats.update(split_episode_stats(data, categories))
         stats.update(curriculum_stats(env.curriculum.levels, env.world_category, categories))

@@ -7,7 +7,8 @@ once:
 * the run folder is checked and locked (:func:`~legoh_rl.training.run_dir.open_run_dir`) and
   SIGINT/SIGTERM stop the run after a checkpoint (:class:`~legoh_rl.training.interrupt.GracefulStop`);
 * a torchrl :class:`~torchrl.collectors.Collector` gathers ``env.num_envs x
-  collector.steps_per_env`` steps per iteration until ``collector.total_frames`` run frames;
+  collector.steps_per_env`` steps per iteration until ``collector.total_frames`` run frames,
+  through torchrl's ``RewardSum`` and ``StepCounter`` (episode return and length for the logs);
 * every ``checkpoint.every`` iterations, and at the end, ``last.pt`` is written atomically with
   the trainer's state, the env (curriculum, randomisation), the RNG states, the counters, the
   resolved config and the provenance (``experiment``, ``stage`` in the meta block); the logs are
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 from torchrl.collectors import Collector
+from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
@@ -104,7 +106,9 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
         print(f"nothing left to train: {t.frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": t.iteration, "frames": t.frames}
     t.before_collect()
-    collector = Collector(t.collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=remaining,
+    # torchrl's episode counters: the return and length of each ended episode, for the logs
+    collect_env = TransformedEnv(t.collect_env, Compose(RewardSum(), StepCounter()))
+    collector = Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=remaining,
                           exploration_type=ExplorationType.RANDOM, **t.collector_kwargs)
 
     def checkpoint() -> Path:
@@ -118,20 +122,24 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
 
     summary: dict = {}
     bar = tqdm(total=remaining, unit="frames", desc=t.desc)
+    collected = time.perf_counter()
     for data in collector:
         started = time.perf_counter()
+        collect_s = started - collected
         stats = t.update(data)
         collector.update_policy_weights_()
         t.iteration += 1
         t.frames += data.numel()
         bar.update(data.numel())
         stats["train/update_s"] = time.perf_counter() - started
+        stats["train/collect_s"] = collect_s
         t.before_collect()  # before the checkpoint, so that it holds the settings its resume collects with
         stats = run.log(t.iteration, t.frames, data, t.env, stats)
         bar.set_postfix(t.postfix(stats))
         if t.iteration % cfg.checkpoint.every == 0:
             checkpoint()
         summary = {"iteration": t.iteration, "frames": t.frames, **stats}
+        collected = time.perf_counter()
         if stop.signum is not None:
             summary["interrupted"] = stop.signum
             break

@@ -1,0 +1,225 @@
+"""Rendering: HikingEnv.render, torchrl's PixelRenderTransform / VideoRecorder, Gymnasium's
+render_mode="rgb_array", and the error without an OpenGL backend.
+
+Frames need an off-screen OpenGL context (MUJOCO_GL=egl, set by conftest; `make gl` installs
+Mesa's EGL). Like the evaluation video test, the tests that draw frames are skipped, with the
+reason, on a machine where no context can be made; the others always run.
+"""
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+from scenes import BoxScene
+from tensordict import TensorDict
+
+from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.render import RenderingUnavailableError, TrackingCamera, tile_frames
+
+H, W = 48, 64  # small frames: software EGL draws the trail terrain slowly
+
+
+def _gl_context_or_skip() -> None:
+    try:
+        mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 8, 8).close()
+    except Exception as err:  # no backend or libraries: what `make gl` installs
+        pytest.skip(f"no off-screen OpenGL context for MuJoCo ({type(err).__name__}: {err})")
+
+
+@pytest.fixture(scope="module")
+def env():
+    """Two worlds on RandomMix trails (real terrain), spawned on different tiles."""
+    env = HikingEnv(HikingEnvConfig(num_envs=2, categories=("randommix",), variants=1, num_threads=1))
+    env.reset()
+    yield env
+    env.close()
+
+
+def _centre(frame: np.ndarray) -> np.ndarray:
+    """Mean RGB of a 12 x 8 patch at the frame's centre, (3,)."""
+    h, w = frame.shape[:2]
+    return frame[h // 2 - 6 : h // 2 + 6, w // 2 - 4 : w // 2 + 4].reshape(-1, 3).mean(0)
+
+
+def test_tile_frames_lays_frames_out_row_major():
+    frames = np.stack([np.full((2, 3, 3), v, np.uint8) for v in (10, 20, 30)])
+    grid = tile_frames(frames, cols=2)
+    assert grid.shape == (4, 6, 3) and grid.dtype == np.uint8
+    assert (grid[:2, :3] == 10).all() and (grid[:2, 3:] == 20).all()
+    assert (grid[2:, :3] == 30).all() and (grid[2:, 3:] == 0).all()  # the empty cell is black
+    assert tile_frames(frames[:1], cols=2).shape == (2, 3, 3)
+    with pytest.raises(ValueError, match="cols must be >= 1"):
+        tile_frames(frames, cols=0)
+
+
+def test_render_refuses_bad_worlds_sizes_and_cameras(env):
+    with pytest.raises(ValueError, match=r"world indices must lie in \[0, 2\), got \[2\]"):
+        env.render(2)
+    with pytest.raises(ValueError, match=r"world indices must lie in \[0, 2\)"):
+        env.render([0, -1])
+    with pytest.raises(ValueError, match=r"a world mask must have shape \(2,\)"):
+        env.render(np.array([True, False, True]))
+    with pytest.raises(ValueError, match="render width must be a positive integer"):
+        env.render(0, width=0, height=H)
+    with pytest.raises(ValueError, match="TrackingCamera.distance must be a positive"):
+        TrackingCamera(distance=0.0)
+
+
+def test_no_gl_backend_raises_a_clear_error_naming_mujoco_gl(env, monkeypatch):
+    """What mujoco raises without EGL libraries becomes an error that says what to do."""
+
+    def no_backend(*args, **kwargs):
+        raise ImportError("Failed to import OpenGL backend (MUJOCO_GL='egl'): libEGL.so.1: cannot open shared object")
+
+    monkeypatch.setattr(mujoco, "Renderer", no_backend)
+    with pytest.raises(RenderingUnavailableError, match="MUJOCO_GL=") as info:
+        env.render(0, width=17, height=13)  # a size not drawn before: a new renderer
+    msg = str(info.value)
+    assert "libegl1 libgl1-mesa-dri" in msg and "make gl" in msg and "libEGL.so.1" in msg
+    assert isinstance(info.value.__cause__, ImportError)
+
+
+def test_render_frames_of_chosen_worlds(env):
+    _gl_context_or_skip()
+    frames = env.render(width=W, height=H)
+    assert isinstance(frames, np.ndarray) and frames.dtype == np.uint8
+    assert frames.shape == (2, H, W, 3)
+    for f in frames:  # not one flat colour: terrain, sky and robot
+        assert f.reshape(-1, 3).std(0).max() > 10.0
+        assert np.unique(f.reshape(-1, 3), axis=0).shape[0] > 20
+    # the two worlds stand on different tiles: their frames differ
+    assert (frames[0] != frames[1]).any(axis=-1).mean() > 0.05
+    one = env.render(1, width=W, height=H)
+    assert one.shape == (H, W, 3)
+    np.testing.assert_array_equal(one, frames[1])  # same state, same pixels
+    picked = env.render([1, 0, 1], width=W, height=H)
+    assert picked.shape == (3, H, W, 3)
+    np.testing.assert_array_equal(picked[0], frames[1])
+    np.testing.assert_array_equal(picked[1], frames[0])
+    assert env.render(np.array([False, True]), width=W, height=H).shape == (1, H, W, 3)
+    assert env.render([], width=W, height=H).shape == (0, H, W, 3)
+    assert env.render(0, width=32, height=24).shape == (24, 32, 3)  # a new size, a new renderer
+
+
+def _looking_at(point: np.ndarray, distance: float = 3.5) -> mujoco.MjvCamera:
+    """A free camera at the default tracking camera's angles, looking at a fixed point."""
+    cam = mujoco.MjvCamera()
+    cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+    cam.lookat[:] = point
+    cam.distance, cam.elevation, cam.azimuth = distance, -20.0, 135.0
+    return cam
+
+
+def _torso_com(env, w: int) -> np.ndarray:
+    """World ``w``'s torso subtree centre of mass, (3,): where the tracking camera looks."""
+    return env.worlds.batch.get_data(w).subtree_com[env.built.torso_body_id].copy()
+
+
+def test_tracking_camera_follows_the_torso_and_the_robot_is_drawn(env):
+    """Move world 0's robot 1.5 m sideways: the default camera moves with it (its frames are
+    those of a camera looking at the torso, before and after), while a camera left where the
+    robot was loses it (the centre of its frame turns from the dark robot to the light ground)."""
+    _gl_context_or_skip()
+    env.reset()
+    fixed = _looking_at(_torso_com(env, 0))
+    tracked_before = env.render(0, W, H)
+    fixed_before = env.render(0, W, H, camera=fixed)
+    assert np.abs(tracked_before.astype(int) - fixed_before).mean() < 1.0
+    qpos = env.worlds.qpos[[0]].copy()
+    qpos[0, 1] += 1.5
+    env.worlds.reset([0], qpos=qpos)
+    tracked_after = env.render(0, W, H)
+    fixed_after = env.render(0, W, H, camera=fixed)
+    assert np.abs(tracked_after.astype(int) - env.render(0, W, H, camera=_looking_at(_torso_com(env, 0)))).mean() < 1.0
+    assert (fixed_after != fixed_before).any(axis=-1).mean() > 0.02  # the robot left the fixed view
+    robot, ground = _centre(fixed_before).mean(), _centre(fixed_after).mean()
+    assert ground - robot > 40.0, (robot, ground)
+    assert abs(_centre(tracked_after).mean() - robot) < 20.0  # still the robot at the centre
+    # other cameras: the head camera sees the trail ahead; a TrackingCamera sets the distance
+    head = env.render(0, W, H, camera="head_depth")
+    assert head.shape == (H, W, 3) and (head != tracked_after).any(axis=-1).mean() > 0.2
+    far = env.render(0, W, H, camera=TrackingCamera(distance=8.0))
+    assert np.abs(far.astype(int) - env.render(0, W, H, camera=_looking_at(_torso_com(env, 0), 8.0))).mean() < 1.0
+    assert (far != tracked_after).any(axis=-1).mean() > 0.05
+    with pytest.raises(ValueError, match=r"camera 'nope' is not a camera of the model; its cameras: \['head_depth'\]"):
+        env.render(0, W, H, camera="nope")
+    env.reset()
+
+
+def test_frames_change_as_the_robot_moves(env):
+    _gl_context_or_skip()
+    env.reset()
+    before = env.render(width=W, height=H)
+    gen = torch.Generator().manual_seed(0)
+    for _ in range(15):  # large random PD targets: the robots flail and fall
+        a = (torch.rand(2, env.A, generator=gen) * 2 - 1) * env.cfg.action_clip
+        env.step(TensorDict({"action": a}, batch_size=env.batch_size))
+    after = env.render(width=W, height=H)
+    for w in range(2):
+        assert (before[w] != after[w]).any(axis=-1).mean() > 0.02
+
+
+def test_pixel_render_transform_and_video_recorder(env, tmp_path):
+    """torchrl's PixelRenderTransform calls env.render() with no arguments (here with the size as
+    its kwargs) and writes the (N, H, W, 3) frames as a "pixels" entry; VideoRecorder tiles the
+    worlds into one video."""
+    _gl_context_or_skip()
+    from torchrl.envs import TransformedEnv
+    from torchrl.record import CSVLogger, PixelRenderTransform, VideoRecorder
+
+    logger = CSVLogger(exp_name="render", log_dir=str(tmp_path), video_format="pt")
+    tenv = TransformedEnv(env, PixelRenderTransform(width=W, height=H))
+    tenv.append_transform(VideoRecorder(logger=logger, tag="hike"))
+    spec = tenv.observation_spec["pixels"]
+    assert spec.shape == (2, H, W, 3) and spec.dtype == torch.uint8
+    td = tenv.rollout(4)
+    assert td["pixels"].shape == (2, 4, H, W, 3) and td["pixels"].dtype == torch.uint8
+    assert td["next", "pixels"].shape == (2, 4, H, W, 3)
+    # the last frames are those of the env's current state; they changed over the rollout
+    np.testing.assert_array_equal(td["next", "pixels"][:, -1].numpy(), env.render(width=W, height=H))
+    assert (td["pixels"][:, 0] != td["next", "pixels"][:, -1]).any(-1).float().mean() > 0.01
+    tenv.transform[-1].dump()
+    videos = list((tmp_path / "render" / "videos").glob("hike_*.pt"))
+    assert len(videos) == 1
+    video = torch.load(videos[0])
+    # (1, T, 3, H, 2W): the two worlds side by side, frames of the reset and of each step
+    assert video.shape[0] == 1 and video.shape[2:] == (3, H, 2 * W) and video.shape[1] >= 5
+    assert video.dtype == torch.uint8
+
+
+def test_gymnasium_render_mode_rgb_array():
+    import gymnasium
+
+    import legoh_rl.envs  # noqa: F401  (registers the ids)
+
+    _gl_context_or_skip()
+    env = gymnasium.make("LegoH/Hike-H1-v0", render_mode="rgb_array", trails=BoxScene(), num_threads=1,
+                         width=W, height=H)
+    assert env.render_mode == "rgb_array"
+    assert env.metadata["render_modes"] == ["rgb_array"] and env.metadata["render_fps"] == pytest.approx(50.0)
+    env.reset(seed=0)
+    first = env.render()  # through Gymnasium's passive checker (render modes, fps, frame)
+    assert isinstance(first, np.ndarray) and first.shape == (H, W, 3) and first.dtype == np.uint8
+    assert first.reshape(-1, 3).std(0).max() > 10.0
+    rng = np.random.default_rng(0)
+    for _ in range(15):
+        env.step(rng.uniform(-5.0, 5.0, size=env.action_space.shape).astype(np.float32))
+    moved = env.render()
+    assert (moved != first).any(axis=-1).mean() > 0.02
+    env.close()
+
+
+def test_gymnasium_without_render_mode_and_bad_modes():
+    import gymnasium
+
+    from legoh_rl.envs.gym_env import HikingGymEnv
+
+    with pytest.raises(ValueError, match=r"render_mode must be None or one of \['rgb_array'\], got 'depth'"):
+        HikingGymEnv(render_mode="depth", trails=BoxScene(), num_threads=1)
+    with pytest.raises(ValueError, match="width must be a positive integer"):
+        HikingGymEnv(render_mode="rgb_array", width=0, trails=BoxScene(), num_threads=1)
+    env = gymnasium.make("LegoH/Hike-H1-v0", trails=BoxScene(), num_threads=1).unwrapped
+    assert env.render_mode is None
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match="without a render mode"):
+        assert env.render() is None
