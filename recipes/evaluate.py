@@ -9,6 +9,11 @@ logs all of it to wandb (offline by default).
     python recipes/evaluate.py checkpoint=outputs/oracle_h1/last.pt protocol=paper
     python recipes/evaluate.py checkpoint=zero robot=g1       # PD-hold baseline, no policy
     python recipes/evaluate.py checkpoint=... trail_seeds=[0,1,2]   # three trail sets pooled
+    python recipes/evaluate.py checkpoint=deploy/oracle_h1.onnx     # ONNX export, onnxruntime
+
+A ``.onnx`` checkpoint is an export of ``recipes/export_policy.py --format onnx``: ``OUT.onnx`` is an
+oracle's graph, or names a student's pair ``OUT.perception.onnx`` + ``OUT.locomotion.onnx``; it runs
+with onnxruntime (``pip install 'legoh-rl[deploy]'``) in the same loop (docs/deploy.md).
 
 ``trail_seeds`` repeats the protocol on trail grids generated with each seed (new trails, same
 categories, levels and variants). A deterministic policy on an unrandomised trail has a single
@@ -72,7 +77,8 @@ def trail_seeds_of(cfg: DictConfig) -> list[int]:
 def evaluate(cfg: DictConfig) -> dict:
     """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
     if cfg.checkpoint is None:
-        raise ValueError("checkpoint is required: a .pt file from a recipe, or 'zero' for the PD-hold baseline")
+        raise ValueError("checkpoint is required: a .pt file from a recipe, a .onnx export, or 'zero' for the "
+                         "PD-hold baseline")
     if cfg.video and not float(cfg.video_seconds) > 0.0:  # checked before the evaluation, not after it
         raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
     protocol = protocol_of(cfg)

@@ -64,6 +64,9 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
                 num_threads=None, trails=None):
     """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline.
 
+    A path ending in ``.onnx`` names exported graphs, run with onnxruntime
+    (:func:`~legoh_rl.training.onnx_policy.load_onnx_policy`).
+
     Raises:
         FileNotFoundError: no checkpoint at the path.
         ValueError: the checkpoint's kind is unknown, or it was made for another robot or
@@ -72,6 +75,10 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
     if checkpoint == "zero":
         env = eval_env(robot, protocol, variants, seed, num_threads, trails=trails)
         return env, ZeroPolicy(env.A), "zero-action"
+    if str(checkpoint).endswith(".onnx"):  # graphs from export_policy.py --format onnx
+        from legoh_rl.training.onnx_policy import load_onnx_policy
+
+        return load_onnx_policy(checkpoint, protocol, variants, seed, num_threads, trails=trails)
     state = load_checkpoint(checkpoint)
     meta = state.get("meta", {})
     kind = meta.get("kind")
