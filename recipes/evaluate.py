@@ -34,10 +34,13 @@ import hydra  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
+from legoh_rl.training.checkpoint import load_checkpoint  # noqa: E402
 from legoh_rl.training.evaluation import (  # noqa: E402
     EvalProtocol,
     aggregate,
     cell_table,
+    eval_scalars,
+    long_table,
     markdown_table,
     plot_trajectories,
     render_video,
@@ -92,16 +95,17 @@ def evaluate(cfg: DictConfig) -> dict:
               flush=True)
         env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
                                         seed=seed, num_threads=cfg.num_threads)
-        part = run_protocol(env, policy, replace(protocol, seed=seed))
+        part = run_protocol(env, policy, replace(protocol, seed=seed), progress=True)
         episodes += [{**e, "run": i * protocol.runs + e["run"], "trail_seed": seed} for e in part.episodes]
         if i == 0:
             first_env, first_policy, result = env, policy, part
     env, policy = first_env, first_policy  # the plot and the video show the first trail set
     result.episodes = episodes
     rows = aggregate(result.episodes)
+    level_rows = aggregate(result.episodes, by="level")
     table = markdown_table(rows)
     (out_dir / "table.md").write_text(table + "\n")
-    level_table = markdown_table(aggregate(result.episodes, by="level"))
+    level_table = markdown_table(level_rows)
     (out_dir / "table_levels.md").write_text(level_table + "\n")
     csv_path = write_csv(rows, out_dir / "table.csv")
     cells = cell_table(result.episodes)
@@ -115,27 +119,37 @@ def evaluate(cfg: DictConfig) -> dict:
     print(table)
     print("\nby level:\n" + level_table)
     print("\nsuccess per category and level:\n" + cells)
+    group = cfg.logger.get("group") or checkpoint_experiment(cfg.checkpoint)
     logger = make_logger(cfg.logger.backend, cfg.logger.exp_name, str(out_dir / "logs"), cfg.logger.project,
-                         cfg.logger.online, config=OmegaConf.to_container(cfg, resolve=True))
-    for m, (mean, _) in rows["overall"].items():
-        logger.log_scalar(f"eval/{m}", mean, step=0)
-    _log_media(logger, table, plot, video)
+                         cfg.logger.online, config=OmegaConf.to_container(cfg, resolve=True), group=group)
+    level_scalars = {k: v for k, v in eval_scalars(level_rows).items() if "/overall/" not in k}
+    logger.log_metrics({**eval_scalars(rows), **level_scalars}, step=0)
+    _log_media(logger, rows, level_rows, plot, video)
     artefacts = {"table": str(out_dir / "table.md"), "levels": str(out_dir / "table_levels.md"), "csv": str(csv_path), "plot": str(plot),
                  "video": str(video) if video else None}
     print("\nartefacts:\n" + "\n".join(f"  {k:6} {v}" for k, v in artefacts.items() if v))
     return {"rows": rows, "episodes": result.episodes, **artefacts}
 
 
-def _log_media(logger, table: str, plot: Path, video: Path | None) -> None:
+def checkpoint_experiment(checkpoint) -> str | None:
+    """The experiment named in a ``.pt`` checkpoint's meta block (None for others): the wandb
+    group that puts an evaluation beside its training runs."""
+    if not str(checkpoint).endswith(".pt"):
+        return None
+    return load_checkpoint(checkpoint).get("meta", {}).get("experiment")
+
+
+def _log_media(logger, rows: dict, level_rows: dict, plot: Path, video: Path | None) -> None:
+    """The tables (numeric columns: by, group, metric, mean, std), the trajectory plot and the
+    video, in one wandb call (nothing for the CSV logger, which has the scalars)."""
     exp = getattr(logger, "experiment", None)
     if exp is None or not hasattr(exp, "log"):
         return
     import wandb
 
-    lines = [ln for ln in table.splitlines() if not ln.startswith("|---")]
-    header = [c.strip() for c in lines[0].strip("|").split("|")]
-    data = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines[1:]]
-    media = {"eval/table": wandb.Table(columns=header, data=data), "eval/trajectories": wandb.Image(str(plot))}
+    columns, data = long_table(rows, "category")
+    data += long_table(level_rows, "level")[1]
+    media = {"eval/table": wandb.Table(columns=columns, data=data), "eval/trajectories": wandb.Image(str(plot))}
     if video is not None:
         media["eval/video"] = wandb.Video(str(video), format="mp4")
     exp.log(media)

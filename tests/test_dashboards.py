@@ -106,3 +106,50 @@ def test_wandb_run_keeps_the_env_config_and_logs_once_per_iteration(tmp_path, mo
     saved = configs[-1]
     assert saved["env"]["num_envs"] == 4 and saved["env"]["robot"] == "h1" and saved["env"]["episode_length_s"] == 0.1
     assert saved["runtime"]["torch"] == runtime_versions()["torch"]
+
+
+def test_eval_figures_are_numbers():
+    from legoh_rl.training.evaluation import eval_scalars, long_table
+
+    rows = {"gap": {"success": (50.0, 5.0)}, "level 1": {"success": (25.0, 0.0)}, "overall": {"success": (40.0, 2.0)}}
+    assert eval_scalars(rows) == {"eval/gap/success": 50.0, "eval/gap/success_std": 5.0,
+                                  "eval/level_1/success": 25.0, "eval/level_1/success_std": 0.0,
+                                  "eval/overall/success": 40.0, "eval/overall/success_std": 2.0}
+    columns, data = long_table(rows, "category")
+    assert columns == ["by", "group", "metric", "mean", "std"]
+    assert data[0] == ["category", "gap", "success", 50.0, 5.0] and all(isinstance(r[3], float) for r in data)
+
+
+def test_evaluation_logs_numeric_columns_in_the_experiments_group(tmp_path, monkeypatch):
+    wandb = pytest.importorskip("wandb")
+    import evaluate as evaluate_recipe
+
+    assert evaluate_recipe.checkpoint_experiment(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt")) == \
+        "oracle_h1_trails"
+    assert evaluate_recipe.checkpoint_experiment("zero") is None
+    logged, inits = [], []
+    real_log, real_init = wandb.sdk.wandb_run.Run.log, wandb.init
+
+    def log(self, data, *args, **kwargs):
+        logged.append(dict(data))
+        return real_log(self, data, *args, **kwargs)
+
+    def init(*args, **kwargs):
+        inits.append(kwargs)
+        return real_init(*args, **kwargs)
+
+    monkeypatch.setattr(wandb.sdk.wandb_run.Run, "log", log)
+    monkeypatch.setattr(wandb, "init", init)
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    with initialize_config_dir(config_dir=str(RECIPES / "config"), version_base=None):
+        cfg = compose(config_name="evaluate", overrides=[
+            "checkpoint=zero", "categories=[randommix,gap]", "levels=[0]", "robots_per_cell=1", "variants=1",
+            "num_threads=1", f"output_dir={tmp_path}", "video=false", "logger.group=my_experiment"])
+    out = evaluate_recipe.evaluate(cfg)
+    assert inits[-1]["group"] == "my_experiment"
+    scalars = next(d for d in logged if "eval/overall/success" in d)
+    assert scalars["eval/overall/success"] == out["rows"]["overall"]["success"][0] == 0.0
+    assert scalars["eval/gap/ttf"] == pytest.approx(out["rows"]["gap"]["ttf"][0]) and "eval/level_0/ttf_std" in scalars
+    table = next(d["eval/table"] for d in logged if "eval/table" in d)
+    assert table.columns == ["by", "group", "metric", "mean", "std"]
+    assert {r[1] for r in table.data} == {"randommix", "gap", "overall", "level 0"}

@@ -153,3 +153,80 @@ def test_config_validation_names_bad_field(cpu_cfg):
     bad = dataclasses.replace(cpu_cfg, vit=dataclasses.replace(cpu_cfg.vit, heads=5))
     with pytest.raises(ValueError, match="heads 5"):
         make_perception("tcvit", bad)
+
+
+def _first_layer_width(cfg, name):
+    return cfg.rma_layers[0] if name.startswith("rma") else cfg.memory_in_layers[0]
+
+
+@pytest.mark.parametrize("name", sorted(PERCEPTION_BUILDERS))
+def test_no_waypoint_input_with_m_zero(cpu_cfg, name):
+    """M = 0 (``num_waypoints=0``): no waypoint input, the key is never read, and the only
+    parameter change is the first memory-input / RMA-trunk layer losing ``gps_dim`` inputs."""
+    cfg0 = perception_config("cpu", proprio_dim=PROPRIO, num_waypoints=0)
+    torch.manual_seed(0)
+    net0 = make_perception(name, cfg0)
+    net1 = make_perception(name, cpu_cfg)
+    assert "waypoint_gps" not in net0.in_keys and "waypoint_gps" in net1.in_keys
+    n0 = sum(p.numel() for p in net0.parameters())
+    n1 = sum(p.numel() for p in net1.parameters())
+    assert n1 - n0 == cpu_cfg.io.gps_dim * _first_layer_width(cpu_cfg, name)
+    td = make_inputs(cfg0).exclude("waypoint_gps")
+    out = net0(td)
+    assert out["z_uni"].shape == (2, 32) and out["goals_uni"].shape == (2, 3, 2)
+    # the output spec carries the config's sizes
+    assert net0.spec["z_uni"].shape == (32,) and net0.spec["goals_uni"].shape == (3, 2)
+    small = perception_config("cpu", proprio_dim=PROPRIO, latent_dim=7, num_goals=4, num_waypoints=0)
+    spec = make_perception(name, small).spec
+    assert spec["z_uni"].shape == (7,) and spec["goals_uni"].shape == (4, 2)
+    assert spec["delta_g0"].shape == (2,)
+
+
+def test_num_waypoints_is_zero_or_one():
+    with pytest.raises(ValueError, match="num_waypoints must be 0 or 1, got 2"):
+        perception_config("cpu", proprio_dim=PROPRIO, num_waypoints=2)
+
+
+def test_committed_student_checkpoint_acts_as_before():
+    """The default (M = 1) is LEGO-H's network: ``checkpoints/student_h1.pt`` loads strictly and
+    gives the actions it gave before ``num_waypoints`` existed (recorded with that code)."""
+    from pathlib import Path
+
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from legoh_rl.modules import LocomotionConfig, make_locomotion_actor
+
+    path = Path(__file__).resolve().parents[1] / "checkpoints" / "student_h1.pt"
+    ck = torch.load(path, map_location="cpu", weights_only=False)
+    d = ck["meta"]["obs_layout"]["proprio"][0]
+    cfg = perception_config("cpu", d, num_goals=3)
+    assert cfg.io.num_waypoints == 1
+    perception = make_perception("tcvit", cfg)
+    perception.load_state_dict(ck["perception"], strict=True)
+    actor = make_locomotion_actor(LocomotionConfig(proprio_dim=d, num_actions=10))
+    actor.load_state_dict(ck["actor"], strict=True)
+
+    def ramp(*shape):
+        return torch.linspace(0.0, 1.0, torch.Size(shape).numel()).reshape(shape)
+
+    td = TensorDict(
+        {
+            "depth_goal_stack": ramp(1, 4, 2, 64, 64), "depth": ramp(1, 1, 64, 64).flip(-1),
+            "goal_gps": torch.tensor([[8.0, -3.0]]), "waypoint_gps": torch.tensor([[4.0, 1.5]]),
+            "proprio": torch.sin(torch.arange(d, dtype=torch.float32)).unsqueeze(0) * 0.5,
+            "is_init": torch.ones(1, 1, dtype=torch.bool),
+        },
+        [1],
+    )
+    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+        out = perception(td)
+        out["goal_next"] = out["goals_uni"][..., 0, :]
+        actor(out)
+        # the memory input is still MLP(concat(gamma, goal_gps, waypoint_gps, proprio))
+        mem = perception[1].module
+        by_hand = mem.mlp(torch.cat([out["perception_features"], td["goal_gps"],
+                                     td["waypoint_gps"], td["proprio"]], -1))
+    assert torch.equal(out["perception_memory_in"], by_hand)
+    before = [0.673367202, -0.146161661, 2.037792206, 3.133442640, -2.638010740, -0.902080297,
+              -1.319347143, -0.183866873, -0.197534755, -5.711642742]
+    torch.testing.assert_close(out["loc"][0], torch.tensor(before), rtol=0, atol=1e-4)

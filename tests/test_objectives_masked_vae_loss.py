@@ -150,7 +150,8 @@ def test_auto_fit_bounds_on_first_valid_batch():
     a[:, 4:] = 50.0  # padding, masked out below: must not widen the bounds
     valid = torch.ones(4, 6, dtype=torch.bool)
     valid[:, 4:] = False
-    loss(TensorDict(action_tea=a, mask=valid, batch_size=[4, 6]))
+    # the default mask key is torchrl's valid-step mask (docs/keys.md)
+    loss(TensorDict({"action_tea": a, ("collector", "mask"): valid}, batch_size=[4, 6]))
     assert vae.bounds_fitted
     data = a[:, :4].reshape(-1, 10)
     lo, hi = data.min(0).values, data.max(0).values

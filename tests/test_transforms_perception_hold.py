@@ -16,6 +16,7 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.collectors import Collector
+from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, InitTracker, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 from torchrl.modules import GRUModule
@@ -271,7 +272,63 @@ def test_errors() -> None:
         },
         [2],
     )
-    with pytest.raises(ValueError, match=r"held value 'z_uni' has feature shape \(7,\)"):
+    with pytest.raises(ValueError, match=r"wrote 'z_uni' with feature shape \(4,\), but the held "
+                       r"shape is \(7,\) \(from out_shapes\)"):
         hold(td)
     with pytest.raises(ValueError, match="time dimension"):
         hold.hold_forward(td[0])
+
+
+class SpecPerception(CountingPerception):
+    """CountingPerception declaring its outputs through torchrl's ``spec`` attribute."""
+
+    def __init__(self, batch: tuple = ()) -> None:
+        super().__init__()
+        self.spec = Composite(
+            {k: Unbounded(shape=(*batch, *v)) for k, v in SHAPES.items()}, shape=batch
+        )
+
+
+def example_td(batch: int = 2) -> TensorDict:
+    return TensorDict(
+        {"pixels": torch.ones(batch, 1, 4, 4), "world_id": torch.zeros(batch, 1, dtype=torch.long)},
+        [batch],
+    )
+
+
+def test_held_shapes_from_the_module_spec_or_a_dry_run() -> None:
+    # the module's spec (feature shapes after the Composite's own batch shape)
+    for batch in ((), (3,)):
+        hold = PerceptionHold(SpecPerception(batch), tick_key="cam_tick")
+        assert hold.out_shapes == SHAPES
+        assert set(hold.shape_sources.values()) == {"the perception module's spec"}
+        assert hold.held_spec()["held_z_uni"].shape == (4,)
+    # a dry run on an example TensorDict or on a spec of the inputs
+    perception = CountingPerception()
+    hold = PerceptionHold(perception, example_input=example_td())
+    assert hold.out_shapes == SHAPES and hold.shape_sources["goals_uni"] == "the dry run on example_input"
+    assert len(perception.calls) == 1  # one forward, on a copy
+    spec = Composite(
+        pixels=Unbounded(shape=(5, 1, 4, 4)), world_id=Unbounded(shape=(5, 1), dtype=torch.long),
+        shape=(5,),
+    )
+    assert PerceptionHold(CountingPerception(), example_input=spec).out_shapes == SHAPES
+    # nothing known: LEGO-H's defaults, and the first forward says what is wrong
+    hold = PerceptionHold(CountingPerception())
+    assert hold.out_shapes == {"z_uni": (32,), "delta_g0": (2,), "goals_uni": (3, 2)}
+    with pytest.raises(ValueError, match=r"wrote 'z_uni' with feature shape \(4,\), but the held "
+                       r"shape is \(32,\) \(from LEGO-H's default shapes"):
+        hold(example_td())
+
+
+def test_explicit_out_shapes_are_checked_against_the_module() -> None:
+    ok = PerceptionHold(SpecPerception(), out_shapes=SHAPES)
+    assert ok.shape_sources["z_uni"] == "out_shapes"
+    with pytest.raises(ValueError, match=r"held shape of 'z_uni': the perception module's spec "
+                       r"gives \(4,\) but out_shapes gives \(32,\)"):
+        PerceptionHold(SpecPerception(), out_shapes={"z_uni": (32,)})
+    with pytest.raises(ValueError, match=r"held shape of 'goals_uni': the dry run on example_input "
+                       r"gives \(3, 2\) but out_shapes gives \(5, 2\)"):
+        PerceptionHold(CountingPerception(), out_shapes={"goals_uni": (5, 2)}, example_input=example_td())
+    with pytest.raises(RuntimeError, match="dry run of the perception module on example_input failed"):
+        PerceptionHold(CountingPerception(), example_input=TensorDict({"pixels": torch.ones(2, 1, 4, 4)}, [2]))

@@ -21,7 +21,11 @@ from legoh_rl.modules.configs import (
     perception_config,
 )
 from legoh_rl.modules.distributions import GaussianHead, make_gaussian_actor
-from legoh_rl.modules.goal_adaptation import PerceptionHeads, make_memory_perception
+from legoh_rl.modules.goal_adaptation import (
+    PerceptionHeads,
+    make_memory_perception,
+    perception_output_spec,
+)
 from legoh_rl.modules.keys import AdaptationKeys, LocomotionKeys, OracleKeys, PerceptionKeys
 from legoh_rl.modules.locomotion import LocomotionNet, make_locomotion_actor
 from legoh_rl.modules.masked_vae import MaskedVAE, MaskedVAEConfig, make_masked_vae_module
@@ -77,6 +81,7 @@ __all__ = [
     "make_oracle_actor_critic",
     "make_oracle_critic",
     "make_perception",
+    "perception_output_spec",
     "make_rmab",
     "make_rmah",
     "make_tcvit",

@@ -23,7 +23,11 @@ from torch import nn
 from legoh_rl.modules.adaptation import ProprioHistoryEncoder
 from legoh_rl.modules.cnn import DepthCNN, check_trailing_shape
 from legoh_rl.modules.configs import PerceptionConfig
-from legoh_rl.modules.goal_adaptation import make_heads_module, make_memory_perception
+from legoh_rl.modules.goal_adaptation import (
+    attach_output_spec,
+    make_heads_module,
+    make_memory_perception,
+)
 from legoh_rl.modules.keys import PerceptionKeys
 from legoh_rl.modules.mlp import build_mlp
 
@@ -82,7 +86,9 @@ class RMAAdapter(nn.Module):
     ``proprio_history`` ``(*B, T_h, D)`` goes through a
     :class:`~legoh_rl.modules.adaptation.ProprioHistoryEncoder`; with ``use_depth`` the
     current ``depth`` ``(*B, 1, H, W)`` through a :class:`DepthCNN`; everything is
-    concatenated with the GPS vectors and passed through the ``rma_layers`` MLP.
+    concatenated with the GPS vectors (``goal_gps`` (*B, 2) and, when
+    ``cfg.io.num_waypoints`` is 1, ``waypoint_gps`` (*B, 2)) and passed through the
+    ``rma_layers`` MLP. With M = 0: ``forward(proprio_history, goal_gps[, depth])``.
     """
 
     def __init__(self, cfg: PerceptionConfig, use_depth: bool) -> None:
@@ -92,20 +98,27 @@ class RMAAdapter(nn.Module):
         self.history = ProprioHistoryEncoder(io.proprio_dim, io.history_len, cfg.history,
                                              hist_dim, out_activation="elu")
         self.use_depth = use_depth
-        in_dim = hist_dim + 2 * io.gps_dim
+        self.num_waypoints = int(io.num_waypoints)
+        in_dim = hist_dim + io.gps_inputs * io.gps_dim
         if use_depth:
             self.cnn = DepthCNN(1, io.image_size, cfg.cnn, name="RMA-H depth CNN (depth)")
             in_dim += self.cnn.out_dim
         self.trunk = build_mlp(in_dim, cfg.rma_layers, "elu")
         self.out_dim = int(cfg.rma_layers[-1])
 
-    def forward(self, proprio_history, goal_gps, waypoint_gps, depth=None) -> torch.Tensor:
-        """Encode the inputs into trunk features."""
-        parts = [self.history(proprio_history), goal_gps, waypoint_gps]
+    def forward(self, proprio_history, goal_gps, *rest) -> torch.Tensor:
+        """Encode the inputs into trunk features (``rest``: ``[waypoint_gps][, depth]``)."""
+        expected = self.num_waypoints + int(self.use_depth)
+        if len(rest) != expected:
+            names = ["waypoint_gps"] * self.num_waypoints + ["depth"] * int(self.use_depth)
+            raise TypeError(
+                f"RMAAdapter takes (proprio_history, goal_gps, {', '.join(names) or '-'}) here "
+                f"(num_waypoints={self.num_waypoints}, use_depth={self.use_depth}), got "
+                f"{2 + len(rest)} inputs"
+            )
+        parts = [self.history(proprio_history), goal_gps, *rest[: self.num_waypoints]]
         if self.use_depth:
-            if depth is None:
-                raise ValueError("RMAAdapter(use_depth=True) needs a depth input")
-            parts.append(self.cnn(depth))
+            parts.append(self.cnn(rest[-1]))
         return self.trunk(torch.cat(parts, dim=-1))
 
 
@@ -131,12 +144,12 @@ def _make_rma(cfg: PerceptionConfig, keys: PerceptionKeys | None, use_depth: boo
     cfg.validate()
     keys = keys or PerceptionKeys()
     adapter = RMAAdapter(cfg, use_depth)
-    in_keys = [keys.proprio_history, keys.goal_gps, keys.waypoint_gps]
+    in_keys = [keys.proprio_history, keys.goal_gps] + [keys.waypoint_gps] * cfg.io.num_waypoints
     if use_depth:
         in_keys.append(keys.depth)
     trunk = TensorDictModule(adapter, in_keys=in_keys, out_keys=[keys.features])
     heads = make_heads_module(keys.features, adapter.out_dim, cfg, keys)
-    return TensorDictSequential(trunk, heads)
+    return attach_output_spec(TensorDictSequential(trunk, heads), cfg, keys)
 
 
 def make_rmah(cfg: PerceptionConfig, keys: PerceptionKeys | None = None) -> TensorDictSequential:

@@ -57,6 +57,11 @@ class PerceptionIO:
         latent_dim: size of ``z_uni``; must equal the oracle's scandot latent (32).
         gps_dim: size of ``goal_gps`` and ``waypoint_gps`` (2).
         history_len: T_h rows of ``proprio_history`` (RMA baselines).
+        num_waypoints: M, intermediate waypoints given to the network (the paper's D_rm):
+            1 (default, LEGO-H) reads ``waypoint_gps`` (2,); 0 for a task without a
+            waypoint: no ``waypoint_gps`` input, the key is never read, and the memory-input
+            MLP (or the RMA trunk) is ``gps_dim`` narrower. Every committed checkpoint has
+            M = 1.
     """
 
     proprio_dim: int
@@ -67,6 +72,7 @@ class PerceptionIO:
     latent_dim: int = 32
     gps_dim: int = 2
     history_len: int = 10
+    num_waypoints: int = 1
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
@@ -75,6 +81,13 @@ class PerceptionIO:
             _positive(f"PerceptionIO.{name}", getattr(self, name))
         if self.goal_channels < 0:
             raise ValueError(f"PerceptionIO.goal_channels must be >= 0, got {self.goal_channels}")
+        if isinstance(self.num_waypoints, bool) or self.num_waypoints not in (0, 1):
+            raise ValueError(f"PerceptionIO.num_waypoints must be 0 or 1, got {self.num_waypoints!r}")
+
+    @property
+    def gps_inputs(self) -> int:
+        """Number of GPS vectors the networks read: ``goal_gps`` plus M ``waypoint_gps``."""
+        return 1 + int(self.num_waypoints)
 
     @property
     def stack_channels(self) -> int:
@@ -229,7 +242,8 @@ class PerceptionConfig:
         fusion_layers: widths of the fusion MLP concat(alpha, beta) -> gamma; the last
             entry is ``gamma`` 's size.
         memory_in_layers: the 2-layer MLP over (gamma, goal_gps, waypoint_gps, proprio)
-            before the GRU (or causal transformer).
+            before the GRU (or causal transformer); without ``waypoint_gps`` when
+            ``io.num_waypoints`` is 0.
         gru_hidden, gru_layers: GRU size.
         latent_tanh: squash ``z_uni`` with Tanh, like the oracle's scandot latent it imitates.
         ct: causal transformer of the ``tcvit_ct`` ablation.

@@ -3,7 +3,7 @@
 ``z_uni, delta_g0, G = GRU(MLP(gamma, P_B, D_rm, X_pro))`` (paper Sec. "TC-ViT", 3):
 
 * :class:`MemoryInputMLP`: the 2-layer MLP over (features, ``goal_gps``, ``waypoint_gps``,
-  ``proprio``);
+  ``proprio``); ``waypoint_gps`` only when ``cfg.io.num_waypoints`` is 1 (the default);
 * a memory: torchrl's :class:`~torchrl.modules.GRUModule` (``"gru"``), or the
   :class:`~legoh_rl.modules.causal_transformer.CausalTransformerMemory` (``"ct"``);
 * :class:`PerceptionHeads`: ``z_uni`` (latent, Tanh like the oracle's ``z_tea``),
@@ -19,6 +19,7 @@ from __future__ import annotations
 import torch
 from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torch import nn
+from torchrl.data import Composite, Unbounded
 from torchrl.modules import GRUModule
 
 from legoh_rl.modules.causal_transformer import CausalTransformerMemory
@@ -26,28 +27,45 @@ from legoh_rl.modules.configs import PerceptionConfig
 from legoh_rl.modules.keys import PerceptionKeys
 from legoh_rl.modules.mlp import build_mlp, unit_normalize
 
-__all__ = ["MemoryInputMLP", "PerceptionHeads", "make_memory_perception", "make_heads_module"]
+__all__ = [
+    "MemoryInputMLP",
+    "PerceptionHeads",
+    "attach_output_spec",
+    "make_heads_module",
+    "make_memory_perception",
+    "perception_output_spec",
+]
 
 
 class MemoryInputMLP(nn.Module):
     """2-layer (configurable) ELU MLP over the concatenated features and goal/proprio inputs.
 
-    ``forward(features (*B, F), goal_gps (*B, 2), waypoint_gps (*B, 2), proprio (*B, D))
-    -> (*B, layers[-1])``.
+    With ``cfg.io.num_waypoints == 1`` (M = 1, LEGO-H)::
+
+        forward(features (*B, F), goal_gps (*B, 2), waypoint_gps (*B, 2), proprio (*B, D))
+            -> (*B, layers[-1])
+
+    With M = 0 there is no waypoint input: ``forward(features, goal_gps, proprio)``.
+    The inputs are concatenated in this order (``names`` lists them).
     """
 
     def __init__(self, feature_dim: int, cfg: PerceptionConfig) -> None:
         super().__init__()
         io = cfg.io
-        self.dims = (feature_dim, io.gps_dim, io.gps_dim, io.proprio_dim)
+        self.num_waypoints = int(io.num_waypoints)
+        self.names = ("features", "goal_gps") + ("waypoint_gps",) * self.num_waypoints + ("proprio",)
+        self.dims = (feature_dim,) + (io.gps_dim,) * io.gps_inputs + (io.proprio_dim,)
         self.mlp = build_mlp(sum(self.dims), cfg.memory_in_layers, "elu")
         self.out_dim = int(cfg.memory_in_layers[-1])
 
-    def forward(self, features, goal_gps, waypoint_gps, proprio) -> torch.Tensor:
-        """Concatenate the inputs and apply the MLP."""
-        inputs = (features, goal_gps, waypoint_gps, proprio)
-        names = ("features", "goal_gps", "waypoint_gps", "proprio")
-        for name, x, d in zip(names, inputs, self.dims, strict=True):
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        """Concatenate the inputs (in the order of ``names``) and apply the MLP."""
+        if len(inputs) != len(self.names):
+            raise TypeError(
+                f"MemoryInputMLP (num_waypoints={self.num_waypoints}) takes "
+                f"{len(self.names)} inputs {self.names}, got {len(inputs)}"
+            )
+        for name, x, d in zip(self.names, inputs, self.dims, strict=True):
             if x.shape[-1] != d:
                 raise ValueError(f"MemoryInputMLP: {name} has last dim {x.shape[-1]}, expected {d}")
         return self.mlp(torch.cat(inputs, dim=-1))
@@ -85,6 +103,35 @@ def make_heads_module(in_key, in_dim: int, cfg: PerceptionConfig, keys: Percepti
     )
 
 
+def perception_output_spec(cfg: PerceptionConfig, keys: PerceptionKeys | None = None) -> Composite:
+    """Output spec of every perception network: ``z_uni`` ``(latent_dim,)``, ``delta_g0``
+    ``(2,)``, ``goals_uni`` ``(num_goals, 2)`` (feature shapes, no batch dims)."""
+    keys = keys or PerceptionKeys()
+    io = cfg.io
+    return Composite(
+        {
+            keys.z_uni: Unbounded(shape=(io.latent_dim,)),
+            keys.delta_g0: Unbounded(shape=(2,)),
+            keys.goals_uni: Unbounded(shape=(io.num_goals, 2)),
+        },
+        shape=(),
+    )
+
+
+def attach_output_spec(
+    module: TensorDictModuleBase, cfg: PerceptionConfig, keys: PerceptionKeys | None = None
+) -> TensorDictModuleBase:
+    """Set ``module.spec`` to :func:`perception_output_spec` and return ``module``.
+
+    ``spec`` is torchrl's attribute for a module's output spec (``SafeModule``,
+    ``ProbabilisticActor``); :class:`~legoh_rl.transforms.PerceptionHold` reads it to size
+    its held state, so a network built with non-default sizes needs no ``out_shapes``. It is
+    a plain attribute: the module's ``state_dict`` is unchanged.
+    """
+    module.spec = perception_output_spec(cfg, keys)
+    return module
+
+
 def make_memory_perception(
     encoder: TensorDictModuleBase,
     feature_dim: int,
@@ -104,14 +151,16 @@ def make_memory_perception(
             ``keys.context`` / ``keys.context_valid``).
 
     Returns:
-        A ``TensorDictSequential`` writing ``z_uni``, ``delta_g0``, ``goals_uni``; call
+        A ``TensorDictSequential`` writing ``z_uni``, ``delta_g0``, ``goals_uni``, whose
+        ``spec`` (:func:`perception_output_spec`) gives their feature shapes; call
         ``torchrl.modules.utils.get_primers_from_module(module)`` for its env primer.
     """
     keys = keys or PerceptionKeys()
     mem_in = MemoryInputMLP(feature_dim, cfg)
+    gps_keys = [keys.goal_gps] + [keys.waypoint_gps] * cfg.io.num_waypoints
     mem_in_module = TensorDictModule(
         mem_in,
-        in_keys=[keys.features, keys.goal_gps, keys.waypoint_gps, keys.proprio],
+        in_keys=[keys.features, *gps_keys, keys.proprio],
         out_keys=[keys.memory_in],
     )
     if memory == "gru":
@@ -138,4 +187,4 @@ def make_memory_perception(
     else:
         raise ValueError(f"unknown memory {memory!r}; valid: ['ct', 'gru']")
     heads = make_heads_module(keys.memory_out, mem_dim, cfg, keys)
-    return TensorDictSequential(encoder, mem_in_module, mem, heads)
+    return attach_output_spec(TensorDictSequential(encoder, mem_in_module, mem, heads), cfg, keys)

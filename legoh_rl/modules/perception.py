@@ -1,8 +1,9 @@
 """TC-ViT builders and the perception registry (``make_perception(name, cfg)``).
 
 Every registered network reads some of ``depth_goal_stack``, ``depth``, ``goal_gps``,
-``waypoint_gps``, ``proprio``, ``proprio_history`` (and ``is_init``) and writes
-``z_uni`` (latent,), ``delta_g0`` (2,) and ``goals_uni`` (N, 2).
+``waypoint_gps`` (not with ``PerceptionIO(num_waypoints=0)``), ``proprio``,
+``proprio_history`` (and ``is_init``) and writes ``z_uni`` (latent,), ``delta_g0`` (2,) and
+``goals_uni`` (N, 2); its ``spec`` attribute gives those shapes (from the config).
 
 ======== ================================================================ ===========
 name     network                                                          memory
@@ -52,9 +53,11 @@ def make_tcvit(cfg: PerceptionConfig, keys: PerceptionKeys | None = None) -> Ten
     """TC-ViT with its recurrent goal adaptation (GRU).
 
     Inputs: ``depth_goal_stack`` (T, 1+G, H, W), ``depth`` (1, H, W), ``goal_gps`` (2,),
-    ``waypoint_gps`` (2,), ``proprio`` (D,), ``is_init`` (1,), ``perception_hidden``
-    (gru_layers, gru_hidden; zeros if absent). Outputs: ``z_uni``, ``delta_g0``,
-    ``goals_uni`` and ``("next", "perception_hidden")``.
+    ``waypoint_gps`` (2,) (only when ``cfg.io.num_waypoints`` is 1, the default),
+    ``proprio`` (D,), ``is_init`` (1,), ``perception_hidden`` (gru_layers, gru_hidden; zeros
+    if absent). Outputs: ``z_uni`` (latent_dim,), ``delta_g0`` (2,), ``goals_uni``
+    (num_goals, 2) and ``("next", "perception_hidden")``; ``spec`` holds the outputs'
+    feature shapes (:func:`~legoh_rl.modules.goal_adaptation.perception_output_spec`).
     """
     encoder = make_tcvit_encoder(cfg, keys)
     return make_memory_perception(encoder, cfg.gamma_dim, cfg, keys, memory="gru")

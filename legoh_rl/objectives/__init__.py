@@ -7,8 +7,11 @@
 - :class:`HLMLoss`: Hierarchical Latent Matching L_hie (Eqs. 6-9).
 
 Every loss returns a TensorDict whose ``loss_*`` entries a recipe sums; see docs/objectives.md.
+Every loss (and :func:`policy_kl`) reads the valid-step mask at :data:`VALID_MASK_KEY`,
+torchrl's ``("collector", "mask")``, unless remapped with ``set_keys(mask=...)``.
 """
 
+from legoh_rl.objectives._common import VALID_MASK_KEY
 from legoh_rl.objectives.dagger import DAggerLoss
 from legoh_rl.objectives.hlm import HLMLoss, cosine_similarity
 from legoh_rl.objectives.masked_vae_loss import MaskedVAELoss
@@ -27,6 +30,7 @@ __all__ = [
     "HLMLoss",
     "MaskedVAELoss",
     "PPOConfig",
+    "VALID_MASK_KEY",
     "cosine_similarity",
     "gaussian_kl",
     "make_ppo_loss",

@@ -11,6 +11,13 @@ from torch import Tensor
 
 _REDUCTIONS = ("mean", "sum", "none")
 
+#: The valid-step (padding) mask every LEGO-H loss reads by default: torchrl's own key, written
+#: by ``split_trajectories``, ``SliceSampler(pad_output=True)`` and the collectors' padded
+#: trajectory batches (bool ``(*B,)`` or ``(*B, 1)``, ``True`` = valid), and the one
+#: ``ClipPPOLoss`` (``loss_mask_key="auto"``) and :func:`~legoh_rl.objectives.policy_kl` read.
+#: A batch without it counts every step. See docs/keys.md.
+VALID_MASK_KEY: tuple[str, str] = ("collector", "mask")
+
 
 def check_weight(name: str, value: float) -> float:
     """Return ``value`` as a float, raising if it is not a finite number >= 0."""
@@ -49,6 +56,8 @@ def get_padding_mask(
     tensordict: TensorDictBase, key: NestedKey | None, sample_shape: torch.Size
 ) -> Tensor | None:
     """Read the bool padding mask (``True`` = valid) at ``key``, shaped like the per-sample loss.
+
+    ``key`` is the loss's ``mask`` key, :data:`VALID_MASK_KEY` unless remapped.
 
     A trailing singleton dimension (``(*B, 1)``) is dropped. Returns ``None`` when ``key`` is
     ``None`` or absent from ``tensordict`` (every element counts).

@@ -10,6 +10,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.objectives import LossModule
 
 from legoh_rl.objectives._common import (
+    VALID_MASK_KEY,
     check_reduction,
     check_same_shape,
     check_weight,
@@ -36,8 +37,9 @@ class DAggerLoss(LossModule):
     * action: SmoothL1 between ``a_tea`` and ``a_uni`` (``(*B, A)``), averaged over joints.
 
     Each term is then averaged over the valid samples (``reduction="mean"``): samples whose
-    padding mask (key ``mask``, bool ``(*B,)`` or ``(*B, 1)``, ``True`` = valid) is ``False``
-    contribute nothing; without a mask entry every sample counts.
+    padding mask (key ``mask``, default ``("collector", "mask")``, torchrl's valid-step mask;
+    bool ``(*B,)`` or ``(*B, 1)``, ``True`` = valid) is ``False`` contribute nothing; without
+    a mask entry every sample counts.
 
     Teacher tensors are detached: gradients reach the student only. The student action key
     defaults to ``"loc"``, the policy's deterministic mean, so the gradient reaches the policy
@@ -63,8 +65,10 @@ class DAggerLoss(LossModule):
 
     Input keys (``set_keys`` names -> defaults): ``z_tea`` -> ``"z_tea"``, ``z_uni`` ->
     ``"z_uni"``, ``goals_tea`` -> ``"goals_tea"``, ``goals_uni`` -> ``"goals_uni"``,
-    ``action_tea`` -> ``"action_tea"``, ``action_uni`` -> ``"loc"``, ``mask`` -> ``"mask"``
-    (e.g. ``set_keys(mask=("collector", "mask"))`` after ``split_trajectories``).
+    ``action_tea`` -> ``"action_tea"``, ``action_uni`` -> ``"loc"``, ``mask`` ->
+    ``("collector", "mask")`` (:data:`~legoh_rl.objectives.VALID_MASK_KEY`, written by torchrl's
+    ``split_trajectories`` / ``SliceSampler(pad_output=True)``; e.g. ``set_keys(mask="valid")``
+    for another key).
 
     Returns:
         A TensorDict with ``loss_im_latent`` (``w1 *`` latent term), ``loss_im_goals``,
@@ -82,7 +86,7 @@ class DAggerLoss(LossModule):
         goals_uni: NestedKey = "goals_uni"
         action_tea: NestedKey = "action_tea"
         action_uni: NestedKey = "loc"
-        mask: NestedKey = "mask"
+        mask: NestedKey = VALID_MASK_KEY
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys

@@ -12,6 +12,7 @@ from torchrl.objectives import LossModule
 
 from legoh_rl.modules.masked_vae import MaskedVAE, num_masked_joints
 from legoh_rl.objectives._common import (
+    VALID_MASK_KEY,
     SeededGenerators,
     check_reduction,
     check_same_shape,
@@ -45,7 +46,8 @@ class HLMLoss(LossModule):
     ``num_masked_joints(mask_ratio, A)`` random joints of the student action per sample with
     the VAE's fill value (mid-point of its bounds), drawn from this loss's seeded generator.
     Cosines are per sample; each term is averaged over the valid samples (padding mask key
-    ``mask``, bool ``(*B,)`` or ``(*B, 1)``; missing = all valid).
+    ``mask``, default ``("collector", "mask")``, bool ``(*B,)`` or ``(*B, 1)``; missing = all
+    valid).
 
     Sharing the VAE. The VAE is trained by :class:`~legoh_rl.objectives.MaskedVAELoss`
     during distillation ("iteratively", paper Sec. HLM) and HLM must always see its current
@@ -75,7 +77,8 @@ class HLMLoss(LossModule):
         reduction: ``"mean"``, ``"sum"`` or ``"none"`` over samples.
 
     Input keys: ``action_tea`` -> ``"action_tea"``, ``action_uni`` -> ``"loc"`` (the
-    student's deterministic mean, so the gradient reaches the policy), ``mask`` -> ``"mask"``.
+    student's deterministic mean, so the gradient reaches the policy), ``mask`` ->
+    ``("collector", "mask")`` (:data:`~legoh_rl.objectives.VALID_MASK_KEY`).
 
     Returns:
         A TensorDict with ``loss_hlm_ts`` (``w7 * L_ts``), ``loss_hlm_trip``
@@ -89,7 +92,7 @@ class HLMLoss(LossModule):
 
         action_tea: NestedKey = "action_tea"
         action_uni: NestedKey = "loc"
-        mask: NestedKey = "mask"
+        mask: NestedKey = VALID_MASK_KEY
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys

@@ -12,6 +12,7 @@ from torchrl.objectives import LossModule
 
 from legoh_rl.modules.masked_vae import MaskedVAE, MaskedVAEConfig, num_masked_joints
 from legoh_rl.objectives._common import (
+    VALID_MASK_KEY,
     SeededGenerators,
     check_reduction,
     check_weight,
@@ -53,7 +54,8 @@ class MaskedVAELoss(LossModule):
     combinations collapse the posterior to the prior (decoding error stays at the data
     variance, ``vae_kl`` -> 0), which leaves HLM a latent with no information. Watch the
     ``vae_kl`` diagnostic: near 0 means collapse. Then each term is averaged over the valid
-    samples (padding mask key ``mask``, bool ``(*B,)`` or ``(*B, 1)``; missing = all valid).
+    samples (padding mask key ``mask``, default ``("collector", "mask")``, bool ``(*B,)`` or
+    ``(*B, 1)``; missing = all valid).
 
     The loss owns the VAE (``self.vae``, registered, trainable): optimise
     ``loss.parameters()`` (or ``loss.vae.parameters()``). :class:`~legoh_rl.objectives.HLMLoss`
@@ -78,7 +80,8 @@ class MaskedVAELoss(LossModule):
         seed: seed of the masking / sampling generator (``None``: drawn from torch's global RNG).
         reduction: ``"mean"``, ``"sum"`` or ``"none"`` over samples.
 
-    Input keys: ``action_tea`` -> ``"action_tea"``, ``mask`` -> ``"mask"``.
+    Input keys: ``action_tea`` -> ``"action_tea"``, ``mask`` -> ``("collector", "mask")``
+    (:data:`~legoh_rl.objectives.VALID_MASK_KEY`).
 
     Returns:
         A TensorDict with ``loss_vae_kl``, ``loss_vae_self``, ``loss_vae_mask`` (weighted) and
@@ -90,7 +93,7 @@ class MaskedVAELoss(LossModule):
         """Configurable tensordict keys, see the class docstring."""
 
         action_tea: NestedKey = "action_tea"
-        mask: NestedKey = "mask"
+        mask: NestedKey = VALID_MASK_KEY
 
     default_keys = _AcceptedKeys
     tensor_keys: _AcceptedKeys

@@ -25,6 +25,8 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.utils import ValueEstimators
 from torchrl.objectives.value import GAE
 
+from legoh_rl.objectives._common import VALID_MASK_KEY
+
 __all__ = [
     "AdaptiveKLScheduler",
     "PPOConfig",
@@ -117,7 +119,10 @@ def make_ppo_loss(
         ``value_target`` and ``state_value`` (the rollout value the clipped value loss uses),
         then ``loss(minibatch)`` returns ``loss_objective``, ``loss_critic``,
         ``loss_entropy`` (sum them) and diagnostics (``kl_approx``, ``clip_fraction``, ...).
-        Padding masks written by torchrl (``("collector", "mask")``) are honoured by the loss.
+        Padding masks written by torchrl (``("collector", "mask")``,
+        :data:`~legoh_rl.objectives.VALID_MASK_KEY`, the default of every LEGO-H loss) are
+        honoured by the loss (torchrl's ``loss_mask_key="auto"``, which also ANDs the value
+        estimator's ``shifted_valid``).
     """
     cfg = cfg if cfg is not None else PPOConfig()
     loss = ClipPPOLoss(
@@ -177,7 +182,7 @@ def policy_kl(
     old_scale_key: NestedKey = "scale",
     new_loc_key: NestedKey = "loc",
     new_scale_key: NestedKey = "scale",
-    mask_key: NestedKey | None = ("collector", "mask"),
+    mask_key: NestedKey | None = VALID_MASK_KEY,
 ) -> Tensor:
     """Mean KL between the rollout policy stored in a batch and the current ``actor``.
 
@@ -185,7 +190,9 @@ def policy_kl(
     (written by the collector, ``(*B, A)``); the new ones by running ``actor`` (no grad) on the
     entries it reads, which leaves ``tensordict`` untouched, and reading ``new_loc_key`` /
     ``new_scale_key`` from its output. Returns the scalar mean of :func:`gaussian_kl` over the
-    samples whose bool mask at ``mask_key`` is True (all samples if the key is absent or None).
+    samples whose bool mask at ``mask_key`` (default ``("collector", "mask")``,
+    :data:`~legoh_rl.objectives.VALID_MASK_KEY`) is True (all samples if the key is absent
+    or None).
     """
     old_loc = tensordict.get(old_loc_key, None)
     old_scale = tensordict.get(old_scale_key, None)

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm import tqdm
 
 from legoh_rl.envs.metrics import METRIC_NAMES
 
@@ -25,6 +26,8 @@ __all__ = [
     "EvalProtocol",
     "EvalResult",
     "run_protocol",
+    "eval_scalars",
+    "long_table",
     "aggregate",
     "markdown_table",
     "cell_table",
@@ -97,7 +100,7 @@ def _base_env(env):
     return getattr(env, "base_env", env)
 
 
-def run_protocol(env, policy, protocol: EvalProtocol) -> EvalResult:
+def run_protocol(env, policy, protocol: EvalProtocol, progress: bool = False) -> EvalResult:
     """Run ``policy`` (deterministic) on every cell of ``protocol``.
 
     Args:
@@ -105,6 +108,7 @@ def run_protocol(env, policy, protocol: EvalProtocol) -> EvalResult:
             worlds (or a TransformedEnv around one, e.g. the student's).
         policy: a TensorDictModule writing ``action`` (run under deterministic exploration).
         protocol: the cells, robots and runs.
+        progress: show a progress bar of the worlds whose episode has ended (tqdm, on stderr).
 
     Returns:
         the :class:`EvalResult`; each world contributes the first episode of each run.
@@ -123,6 +127,7 @@ def run_protocol(env, policy, protocol: EvalProtocol) -> EvalResult:
     levels = np.array([cells[k][1] for k in cell_of])
     result = EvalResult()
     max_steps = base.max_steps + 2
+    bar = tqdm(total=n * protocol.runs, unit="episodes", desc="evaluation", disable=not progress)
     for run in range(protocol.runs):
         env.set_seed(protocol.seed + run)
         base.assign_tiles(levels, cats)
@@ -140,6 +145,7 @@ def run_protocol(env, policy, protocol: EvalProtocol) -> EvalResult:
                 new = done & ~finished
                 if new.any():
                     _record(result, out["next"], new, run, cells, cell_of)
+                    bar.update(int(new.sum()))
                 if track.size:  # a world that just ended was auto-reset: its path stops here
                     ended = (finished | done)[track, None]
                     paths.append(np.where(ended, np.nan, base.worlds.qpos[track, :2]))
@@ -154,6 +160,7 @@ def run_protocol(env, policy, protocol: EvalProtocol) -> EvalResult:
                 keep = ~np.isnan(xy[i, :, 0])
                 result.trajectories[int(w)] = xy[i, keep]
                 result.times[int(w)] = np.arange(xy.shape[1])[keep] * base.dt
+    bar.close()
     return result
 
 
@@ -163,6 +170,26 @@ def _record(result: EvalResult, nxt: TensorDictBase, new: np.ndarray, run: int, 
         cat, level = cells[cell_of[w]]
         result.episodes.append({"run": run, "category": cat, "level": int(level),
                                 **{k: float(v[w]) for k, v in ep.items()}})
+
+
+def eval_scalars(rows: dict[str, dict[str, tuple[float, float]]], prefix: str = "eval") -> dict[str, float]:
+    """The figures of :func:`aggregate` as numbers: ``{prefix}/<group>/<metric>`` (the mean) and
+    ``{prefix}/<group>/<metric>_std``, groups with spaces as underscores (``level_0``)."""
+    out = {}
+    for group, metrics in rows.items():
+        g = group.replace(" ", "_")
+        for m, (mean, std) in metrics.items():
+            out[f"{prefix}/{g}/{m}"] = mean
+            out[f"{prefix}/{g}/{m}_std"] = std
+    return out
+
+
+def long_table(rows: dict[str, dict[str, tuple[float, float]]], by: str) -> tuple[list[str], list[list]]:
+    """(columns, data) of :func:`aggregate`'s figures, one numeric row per group and metric:
+    ``[by, group, metric, mean, std]`` (sortable and plottable, e.g. as a wandb Table)."""
+    data = [[by, group, m, float(mean), float(std)] for group, metrics in rows.items()
+            for m, (mean, std) in metrics.items()]
+    return ["by", "group", "metric", "mean", "std"], data
 
 
 def _mean(values: list[float]) -> float:

@@ -32,6 +32,7 @@ def make_logger(
     online: bool = False,
     run_id: str | None = None,
     config: dict | None = None,
+    group: str | None = None,
 ) -> Logger:
     """A torchrl ``Logger``.
 
@@ -43,6 +44,7 @@ def make_logger(
         online: sync to wandb live (otherwise offline: ``wandb sync`` the folder later).
         run_id: resume this wandb run (after ``--resume``).
         config: hyper-parameters to record.
+        group: wandb run group (an experiment's training stages and its evaluations side by side).
 
     Falls back to CSV (with a warning) when wandb cannot start.
     """
@@ -54,6 +56,8 @@ def make_logger(
             from torchrl.record.loggers.wandb import WandbLogger
 
             kwargs = {"resume": "allow", "id": run_id} if run_id else {}
+            if group:
+                kwargs["group"] = group
             # torchrl would write its package list over the config's "env" section (the env
             # settings runs are filtered by); the versions go under "runtime" instead
             logger = WandbLogger(exp_name=exp_name, offline=not online, save_dir=log_dir, project=project,

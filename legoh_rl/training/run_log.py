@@ -39,7 +39,8 @@ class RunLog:
     def __init__(self, cfg: DictConfig, run_dir: Path, run_id: str | None, start_frames: int) -> None:
         lcfg = cfg.logger
         self.logger = make_logger(lcfg.backend, lcfg.exp_name, str(run_dir / "logs"), lcfg.project, lcfg.online,
-                                  run_id, OmegaConf.to_container(cfg, resolve=True))
+                                  run_id, OmegaConf.to_container(cfg, resolve=True),
+                                  group=lcfg.get("group") or cfg.get("experiment_name"))
         self.run_id = getattr(getattr(self.logger, "experiment", None), "id", run_id)
         self.metrics = MetricsFile(run_dir / "metrics.jsonl", resume_step=start_frames if start_frames else None)
         if start_frames:

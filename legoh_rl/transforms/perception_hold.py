@@ -14,7 +14,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import NestedKey, unravel_key, unravel_key_list
-from torchrl.data import Binary, Composite, Unbounded
+from torchrl.data import Binary, Composite, TensorSpec, Unbounded
 from torchrl.envs import TensorDictPrimer
 from torchrl.modules import set_recurrent_mode
 
@@ -23,6 +23,10 @@ from legoh_rl.transforms._common import batch_flag
 __all__ = ["PerceptionHold"]
 
 _DEFAULT_SHAPES = {"z_uni": (32,), "delta_g0": (2,), "goals_uni": (3, 2)}
+_SRC_OUT_SHAPES = "out_shapes"
+_SRC_SPEC = "the perception module's spec"
+_SRC_DRY_RUN = "the dry run on example_input"
+_SRC_DEFAULT = "LEGO-H's default shapes (docs/keys.md)"
 
 
 def _held_key(key: NestedKey, prefix: str) -> NestedKey:
@@ -75,6 +79,29 @@ class PerceptionHold(TensorDictModuleBase):
     on the tick steps only and broadcasts each to the following non-tick steps (index
     gather), reproducing what the policy held while acting.
 
+    **Held shapes.** The primer and :meth:`output_spec` need the feature shape (no batch
+    dims) of every ``hold_keys`` output. They are resolved per key, first match wins:
+
+    1. ``out_shapes`` given explicitly;
+    2. the perception module's output spec, ``perception.spec`` (torchrl's attribute for a
+       module's output spec, as on ``SafeModule`` / ``ProbabilisticActor``): a
+       ``Composite`` whose leaves' shapes, after the ``Composite``'s own batch shape, are the
+       feature shapes. Every network of :func:`legoh_rl.modules.perception.make_perception`
+       carries one built from its config (``latent_dim``, ``num_goals``), so
+       ``PerceptionHold(make_tcvit(cfg))`` needs nothing else, whatever the sizes;
+    3. a dry run: with ``example_input`` (a ``TensorDict`` or a ``Composite`` spec, e.g.
+       ``env.fake_tensordict()`` or ``env.observation_spec``, holding the perception's inputs
+       with any batch size), the module runs once at construction, without gradient, on
+       a copy of those inputs (``spec.zero()`` for a spec; a missing ``is_init_key`` the
+       module reads is set True, a first step), and the shapes it writes are used;
+    4. otherwise LEGO-H's sizes: ``z_uni`` (32,), ``delta_g0`` (2,), ``goals_uni`` (3, 2).
+
+    Sources that disagree (``out_shapes`` vs the spec or the dry run, the spec vs the dry
+    run) raise ``ValueError`` naming the key and both shapes. Every perception forward
+    is checked against the resolved shapes too, so a module writing another shape fails
+    there with the same kind of message (not deep inside torchrl's stacking);
+    ``shape_sources`` says where each shape came from.
+
     Keys (defaults from ``docs/keys.md``, all configurable):
 
     ============================  ==============  =====================================
@@ -85,9 +112,9 @@ class PerceptionHold(TensorDictModuleBase):
     ``is_init``                   ``(1,)`` bool   InitTracker flag (optional)
     ``held_z_uni`` ...            as outputs      held values (primer)
     ``held_valid``                ``(1,)`` bool   held values exist (primer)
-    ``z_uni``                     ``(32,)``       output (held between ticks)
+    ``z_uni``                     ``(L,)``        output (held between ticks), L = 32
     ``delta_g0``                  ``(2,)``        output (held between ticks)
-    ``goals_uni``                 ``(N, 2)``      output (held between ticks)
+    ``goals_uni``                 ``(N, 2)``      output (held between ticks), N = 3
     ``goal_next``                 ``(2,)``        ``goals_uni[..., 0, :]`` (g_1)
     ============================  ==============  =====================================
 
@@ -104,11 +131,16 @@ class PerceptionHold(TensorDictModuleBase):
         valid_key: the held-valid flag key. Default ``"held_valid"``.
         recurrent_keys: recurrent state keys of ``perception``; ``None`` = detect.
         out_shapes: feature shape of each ``hold_keys`` entry, for the primer and
-            :meth:`output_spec`. Default ``{"z_uni": (32,), "delta_g0": (2,),
-            "goals_uni": (3, 2)}`` (entries for keys not in ``hold_keys`` are ignored).
+            :meth:`output_spec`; checked against the module's spec / the dry run. Default
+            ``None``: inferred (see "Held shapes"); entries for keys not in ``hold_keys``
+            are ignored.
+        example_input: ``TensorDictBase`` or ``Composite`` to dry-run the module on when
+            its shapes are not otherwise known (see "Held shapes"). ``None``: no dry run.
 
     Example:
         >>> hold = PerceptionHold(tcvit)                  # tcvit writes z_uni, delta_g0, goals_uni
+        >>> hold.out_shapes, hold.shape_sources["z_uni"]  # from tcvit.spec (its config)
+        ({'z_uni': (32,), 'delta_g0': (2,), 'goals_uni': (3, 2)}, "the perception module's spec")
         >>> policy = TensorDictSequential(hold, locomotion)  # locomotion reads z_uni, goal_next
         >>> env = TransformedEnv(env, Compose(InitTracker(), hold.make_tensordict_primer()))
         >>> rollout = env.rollout(100, policy)            # one TC-ViT forward per 5 steps/world
@@ -129,6 +161,7 @@ class PerceptionHold(TensorDictModuleBase):
         valid_key: NestedKey = "held_valid",
         recurrent_keys: Sequence[NestedKey] | None = None,
         out_shapes: Mapping[NestedKey, Sequence[int]] | None = None,
+        example_input: TensorDictBase | Composite | None = None,
     ) -> None:
         super().__init__()
         if not (hasattr(perception, "in_keys") and hasattr(perception, "out_keys")):
@@ -164,10 +197,9 @@ class PerceptionHold(TensorDictModuleBase):
         if recurrent_keys is None:
             recurrent_keys = [k for k in p_in if _next(k) in p_out]
         self.recurrent_keys = unravel_key_list(list(recurrent_keys))
-        shapes = dict(_DEFAULT_SHAPES)
-        if out_shapes is not None:
-            shapes.update({unravel_key(k): tuple(v) for k, v in out_shapes.items()})
-        self.out_shapes = {k: tuple(shapes[k]) for k in self.hold_keys if k in shapes}
+        resolved = self._resolve_shapes(out_shapes, example_input)
+        self.out_shapes = {k: shape for k, (shape, _) in resolved.items()}
+        self.shape_sources = {k: src for k, (_, src) in resolved.items()}
         self._warned_no_state = False
 
         extra_in = [k for k in (self.tick_key, self.is_init_key) if k is not None]
@@ -181,6 +213,98 @@ class PerceptionHold(TensorDictModuleBase):
             + [_next(r) for r in self.recurrent_keys]
         )
         self.out_keys = list(dict.fromkeys(out_keys))
+
+    # ------------------------------------------------------------------ held shapes
+    def _spec_shapes(self) -> dict:
+        """Feature shapes of ``hold_keys`` declared by ``perception.spec`` (a Composite)."""
+        try:
+            spec = getattr(self.perception, "spec", None)
+        except Exception:  # a module whose spec property raises: no spec
+            spec = None
+        if not isinstance(spec, Composite):
+            return {}
+        shapes = {}
+        for k in self.hold_keys:
+            try:
+                leaf = spec[k]
+            except KeyError:
+                continue
+            if leaf is None:
+                continue
+            shapes[k] = tuple(int(d) for d in leaf.shape[spec.ndim:])
+        return shapes
+
+    def _dry_run_shapes(self, example: TensorDictBase | Composite) -> dict:
+        """Feature shapes of ``hold_keys`` written by one no-grad forward on ``example``."""
+        if isinstance(example, TensorSpec):
+            example = example.zero()
+        if not isinstance(example, TensorDictBase):
+            raise TypeError(
+                "PerceptionHold: example_input must be a TensorDict or a Composite spec, got "
+                f"{type(example).__name__}"
+            )
+        sub = example.select(*self.perception.in_keys, strict=False).clone()
+        init = self.is_init_key
+        if init is not None and init in unravel_key_list(list(self.perception.in_keys)):
+            if sub.get(init, None) is None:  # a first step, as for a fresh env
+                sub.set(init, torch.ones((*sub.batch_size, 1), dtype=torch.bool, device=sub.device))
+        try:
+            with torch.no_grad():
+                out = self.perception(sub)
+        except Exception as err:
+            raise RuntimeError(
+                "PerceptionHold: the dry run of the perception module on example_input failed "
+                f"({type(err).__name__}: {err}); example_input must hold its in_keys "
+                f"{self.perception.in_keys}, or pass out_shapes"
+            ) from err
+        out = sub if out is None else out
+        shapes = {}
+        for k in self.hold_keys:
+            value = out.get(k, None)
+            if value is None:
+                raise KeyError(f"PerceptionHold: the dry run on example_input did not write {k!r}")
+            shapes[k] = tuple(value.shape[sub.batch_dims:])
+        return shapes
+
+    def _resolve_shapes(self, out_shapes, example_input) -> dict:
+        """``{key: (feature shape, source)}``: out_shapes > spec > dry run > defaults."""
+        found: dict = {}
+
+        def add(key, shape, source) -> None:
+            if key in found and found[key][0] != shape:
+                raise ValueError(
+                    f"PerceptionHold: held shape of {key!r}: {source} gives {shape} but "
+                    f"{found[key][1]} gives {found[key][0]}"
+                )
+            found.setdefault(key, (shape, source))
+
+        if out_shapes is not None:
+            for k, v in out_shapes.items():
+                k = unravel_key(k)
+                if k in self.hold_keys:
+                    add(k, tuple(int(d) for d in v), _SRC_OUT_SHAPES)
+        for k, shape in self._spec_shapes().items():
+            add(k, shape, _SRC_SPEC)
+        if example_input is not None:
+            for k, shape in self._dry_run_shapes(example_input).items():
+                add(k, shape, _SRC_DRY_RUN)
+        for k in self.hold_keys:
+            if k not in found and k in _DEFAULT_SHAPES:
+                found[k] = (_DEFAULT_SHAPES[k], _SRC_DEFAULT)
+        return {k: found[k] for k in self.hold_keys if k in found}
+
+    def _check_output(self, out: TensorDictBase, batch_dims: int) -> None:
+        """Raise if a perception output's feature shape is not the held shape."""
+        for k in self.hold_keys:
+            expected = self.out_shapes.get(k)
+            got = tuple(out.get(k).shape[batch_dims:])
+            if expected is not None and got != expected:
+                raise ValueError(
+                    f"PerceptionHold: the perception module wrote {k!r} with feature shape "
+                    f"{got}, but the held shape is {expected} (from {self.shape_sources[k]}); "
+                    f"pass out_shapes={{{k!r}: {got}}}, give the module a spec or an "
+                    "example_input"
+                )
 
     # ------------------------------------------------------------------ specs / primer
     def _shape(self, key: NestedKey) -> tuple[int, ...]:
@@ -223,6 +347,7 @@ class PerceptionHold(TensorDictModuleBase):
         for k in self.hold_keys:
             if out.get(k, None) is None:
                 raise KeyError(f"PerceptionHold: the perception module did not write {k!r}")
+        self._check_output(out, sub.batch_dims)
         for r in self.recurrent_keys:
             if out.get(_next(r), None) is None:
                 raise KeyError(
