@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 from probe_cli import probe_parser
+from tqdm import tqdm
 
 from legoh_rl.training.policies import load_cell_policy
 
@@ -36,7 +37,7 @@ def gait_stats(checkpoint: str, category: str = "randommix", level: int = 0, rob
     walking = np.ones(robots, bool)
     td = env.reset()
     with torch.no_grad():
-        for k in range(steps):
+        for k in tqdm(range(steps), desc="gait_stats", unit="steps", leave=False):
             td = env.step(policy(td))["next"]
             state = base.read_state()
             walking &= ~td["done"].numpy().reshape(-1)

@@ -27,6 +27,7 @@ from probe_cli import probe_parser
 from route_following import with_expert_goal
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm import tqdm
 
 from legoh_rl.training.distill import Teacher
 from legoh_rl.training.policies import load_cell_policy
@@ -65,7 +66,7 @@ def imitation_gap(student: str, teacher: str, category: str = "randommix", level
     diffs, ended = [], np.zeros(robots, bool)
     steps = min(int(round(seconds / base.dt)), base.max_steps)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(steps):
+        for _ in tqdm(range(steps), desc="imitation_gap", unit="steps", leave=False):
             td = hold(td)
             labels = tea.label(td.select(*tea.in_keys).copy())
             td.set("z_tea", labels["z_tea"])

@@ -33,6 +33,7 @@ import torch
 from probe_cli import probe_parser
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tqdm import tqdm
 
 from legoh_rl.envs.sensors import world_to_yaw_frame, yaw_from_quat
 from legoh_rl.training.policies import load_cell_policy
@@ -117,7 +118,7 @@ def route_following(checkpoint: str, category: str = "randommix", level: int = 0
     ended = np.zeros(robots, bool)
     steps = min(int(round(seconds / base.dt)), base.max_steps)
     with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(steps):
+        for _ in tqdm(range(steps), desc="route_following", unit="steps", leave=False):
             td = policy(td)
             expert = td["expert_goals"].numpy()[:, 0]
             pred = td["goals_uni"].numpy()[:, 0] if "goals_uni" in td.keys() else np.full_like(expert, np.nan)

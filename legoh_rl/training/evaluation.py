@@ -331,49 +331,44 @@ def plot_trajectories(env, result: EvalResult, path: str | Path, max_tiles: int 
 
 def render_video(env, policy, path: str | Path, worlds: int = 4, seconds: float = 6.0,
                  size: tuple[int, int] = (240, 320), fps: int = 25) -> Path | None:
-    """A short video of the first ``worlds`` robots (tiled 2 x 2), MuJoCo's Renderer.
+    """A short video of the first ``worlds`` robots (tiled two per row), each followed by a
+    camera tracking its torso (:meth:`~legoh_rl.envs.HikingEnv.render`).
 
-    Needs an OpenGL context (``MUJOCO_GL=egl`` or ``osmesa`` without a display); returns None
-    with a warning when rendering is unavailable, so an evaluation never fails on it.
+    Args:
+        env: the eval env (a HikingEnv, or a TransformedEnv around one), its worlds on their cells.
+        policy: the deterministic policy, a TensorDictModule writing ``action``.
+        path: the .mp4 to write.
+        worlds: how many worlds (from world 0); ``size``: (height, width) of each tile, pixels.
+        seconds: simulated seconds; ``fps``: frames per second of the video.
+
+    Returns:
+        the path, or None with a warning when rendering is unavailable (no OpenGL context: set
+        ``MUJOCO_GL=egl`` or ``osmesa`` without a display), so an evaluation never fails on it.
     """
     import warnings
 
+    from legoh_rl.envs.render import RenderingUnavailableError, tile_frames
+
     if not seconds > 0.0:
         raise ValueError(f"video seconds must be positive, got {seconds}")
-    try:
-        import imageio.v2 as imageio
-        import mujoco
+    import imageio.v2 as imageio
 
-        base = _base_env(env)
-        renderer = mujoco.Renderer(base.built.model, *size)
-    except Exception as err:  # no GL context on this machine
-        warnings.warn(f"video skipped: MuJoCo rendering unavailable ({type(err).__name__}: {err})", stacklevel=2)
-        return None
-    cam = mujoco.MjvCamera()
-    cam.type = mujoco.mjtCamera.mjCAMERA_TRACKING
-    cam.trackbodyid = base.built.base_body_id
-    cam.distance, cam.elevation, cam.azimuth = 3.5, -20.0, 135.0
-    k = min(worlds, base.cfg.num_envs)
+    base = _base_env(env)
+    ids = list(range(min(worlds, base.cfg.num_envs)))
     every = max(1, int(round(1.0 / (fps * base.dt))))
     frames = []
     td = env.reset()
-    with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-        for step in range(int(seconds / base.dt)):
-            td = policy(td)
-            _, td = env.step_and_maybe_reset(td)
-            if step % every:
-                continue
-            tiles = []
-            for w in range(k):
-                data = base.worlds.batch.get_data(w)
-                mujoco.mj_forward(base.built.model, data)
-                renderer.update_scene(data, camera=cam)
-                tiles.append(renderer.render())
-            while len(tiles) % 2 and len(tiles) > 1:
-                tiles.append(np.zeros_like(tiles[0]))
-            rows = [np.concatenate(tiles[i : i + 2], axis=1) for i in range(0, len(tiles), 2)]
-            frames.append(np.concatenate(rows, axis=0))
-    renderer.close()
+    try:
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            for step in range(int(seconds / base.dt)):
+                td = policy(td)
+                _, td = env.step_and_maybe_reset(td)
+                if step % every == 0:
+                    tiles = base.render(worlds=ids, width=size[1], height=size[0])
+                    frames.append(tile_frames(tiles, cols=2))
+    except RenderingUnavailableError as err:
+        warnings.warn(f"video skipped: {err}", stacklevel=2)
+        return None
     if not frames:  # shorter than one frame
         warnings.warn(f"video skipped: {seconds} s is shorter than one frame at {fps} fps", stacklevel=2)
         return None

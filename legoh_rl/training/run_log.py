@@ -79,6 +79,16 @@ class RunLog:
         for f in getattr(getattr(self.logger, "experiment", None), "files", {}).values():  # CSVLogger's open files
             f.flush()
 
+    def video(self, path: Path | None, frames: int) -> None:
+        """Log the video at ``path`` (None: nothing rendered) to wandb, tagged with the run's
+        ``frames``; the CSV logger keeps the file where it is."""
+        exp = getattr(self.logger, "experiment", None)
+        if path is None or exp is None or not hasattr(exp, "log"):
+            return
+        import wandb
+
+        exp.log({"train/video": wandb.Video(str(path), format="mp4"), "train/video_frames": frames})
+
     def close(self) -> None:
         """Flush, then finish the wandb run (writes its offline files)."""
         self.flush()

@@ -12,7 +12,10 @@ once:
 * every ``checkpoint.every`` iterations, and at the end, ``last.pt`` is written atomically with
   the trainer's state, the env (curriculum, randomisation), the RNG states, the counters, the
   resolved config and the provenance (``experiment``, ``stage`` in the meta block); the logs are
-  flushed right after, so they hold exactly what the checkpoint covers (:class:`RunLog`).
+  flushed right after, so they hold exactly what the checkpoint covers (:class:`RunLog`);
+* every ``logger.video_every`` iterations (0: never), a video of the checkpoint's policy, one
+  robot per category at the worlds' median level (:func:`~legoh_rl.training.videos.policy_video`),
+  goes to ``<checkpoint.dir>/videos/`` and the wandb run.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
@@ -33,6 +37,7 @@ from legoh_rl.training.checkpoint import rng_state, save_checkpoint
 from legoh_rl.training.interrupt import GracefulStop
 from legoh_rl.training.run_dir import open_run_dir
 from legoh_rl.training.run_log import RunLog
+from legoh_rl.training.videos import policy_video
 
 __all__ = ["Trainer", "train", "provenance", "finish"]
 
@@ -120,6 +125,7 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
         run.flush()  # the logs hold what the checkpoint covers
         return path
 
+    video_every = int(cfg.logger.get("video_every") or 0)  # 0: no training videos
     summary: dict = {}
     bar = tqdm(total=remaining, unit="frames", desc=t.desc)
     collected = time.perf_counter()
@@ -138,6 +144,11 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
         bar.set_postfix(t.postfix(stats))
         if t.iteration % cfg.checkpoint.every == 0:
             checkpoint()
+        if video_every and t.iteration % video_every == 0:
+            path = checkpoint() if t.iteration % cfg.checkpoint.every else ckpt_dir / "last.pt"
+            run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",
+                                   t.env.trails.categories, int(np.median(t.env.curriculum.levels)),
+                                   seconds=float(cfg.logger.get("video_seconds", 4.0))), t.frames)
         summary = {"iteration": t.iteration, "frames": t.frames, **stats}
         collected = time.perf_counter()
         if stop.signum is not None:
