@@ -125,7 +125,7 @@ def test_evaluation_logs_numeric_columns_in_the_experiments_group(tmp_path, monk
     import evaluate as evaluate_recipe
 
     assert evaluate_recipe.checkpoint_experiment(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt")) == \
-        "oracle_h1_trails"
+        "oracle_h1_footholds"
     assert evaluate_recipe.checkpoint_experiment("zero") is None
     logged, inits = [], []
     real_log, real_init = wandb.sdk.wandb_run.Run.log, wandb.init

@@ -69,7 +69,7 @@ def test_oracle_graph_carries_the_meta_block_and_acts_like_the_checkpoint(export
     env, policy, kind = load_policy(str(ORACLE), TINY, variants=1, num_threads=1)
     onnx_env, onnx_policy, onnx_kind = load_policy(str(path), TINY, variants=1, num_threads=1)
     assert (kind, onnx_kind) == ("oracle", "oracle (onnx)")
-    assert onnx_env.cfg.gait_feedforward == env.cfg.gait_feedforward == 1.0  # the env rebuilt from the metadata
+    assert onnx_env.cfg.gait_feedforward == env.cfg.gait_feedforward == info["meta"]["gait_feedforward"]  # rebuilt from the metadata
     worst = max(float((a["action"] - b["action"]).abs().max())
                 for _, a, b in _deterministic_steps(env, policy, onnx_policy, 100))
     assert worst < 1e-5, worst
