@@ -10,6 +10,7 @@ logs all of it to wandb (offline by default).
     python recipes/evaluate.py checkpoint=zero robot=g1       # PD-hold baseline, no policy
     python recipes/evaluate.py checkpoint=... trail_seeds=[0,1,2]   # three trail sets pooled
     python recipes/evaluate.py checkpoint=deploy/oracle_h1.onnx     # ONNX export, onnxruntime
+    python recipes/evaluate.py checkpoint=... device=cpu            # a GPU-trained checkpoint on the CPU
 
 A ``.onnx`` checkpoint is an export of ``recipes/export_policy.py --format onnx``: ``OUT.onnx`` is an
 oracle's graph, or names a student's pair ``OUT.perception.onnx`` + ``OUT.locomotion.onnx``; it runs
@@ -35,6 +36,7 @@ import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
 from legoh_rl.training.checkpoint import load_checkpoint  # noqa: E402
+from legoh_rl.training.device import resolve_device  # noqa: E402
 from legoh_rl.training.evaluation import (  # noqa: E402
     EvalProtocol,
     aggregate,
@@ -86,6 +88,8 @@ def evaluate(cfg: DictConfig) -> dict:
         raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
     protocol = protocol_of(cfg)
     seeds = trail_seeds_of(cfg)
+    device = resolve_device(cfg.get("device"))
+    cfg = OmegaConf.merge(cfg, {"device": str(device)})  # the logged config records the device it ran on
     torch.set_num_threads(1)
     out_dir = Path(cfg.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -94,7 +98,7 @@ def evaluate(cfg: DictConfig) -> dict:
         print(f"trail set {i + 1}/{len(seeds)} (seed {seed}): {protocol.num_worlds} robots x {protocol.runs} run(s)",
               flush=True)
         env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
-                                        seed=seed, num_threads=cfg.num_threads)
+                                        seed=seed, num_threads=cfg.num_threads, device=device)
         part = run_protocol(env, policy, replace(protocol, seed=seed), progress=True)
         episodes += [{**e, "run": i * protocol.runs + e["run"], "trail_seed": seed} for e in part.episodes]
         if i == 0:

@@ -9,6 +9,8 @@ checkpoints are written atomically and can be resumed.
     python recipes/oracle_ppo.py env.robot=g1 env.num_envs=256
     python recipes/oracle_ppo.py checkpoint.resume=auto           # continue the last run
     python recipes/oracle_ppo.py checkpoint.init=checkpoints/oracle_h1.pt   # warm start from a policy
+    python recipes/oracle_ppo.py device=cuda collector.workers=4  # a GPU for the networks, 4 collecting processes
+    python recipes/oracle_ppo.py collector.workers=8 collector.backend=ray collector.ray.address=auto  # a Ray cluster
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from legoh_rl.training.checkpoint import (
     set_rng_state,
 )
 from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
 from legoh_rl.training.schedules import check_anneal, feedforward_gain
@@ -62,9 +65,12 @@ def ppo_config(cfg: DictConfig) -> PPOConfig:
     )
 
 
-def make_ppo(actor, critic, cfg: DictConfig):
+def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu"):
+    """Loss, GAE, optimiser and KL scheduler; the loss's buffers (and GAE's) on ``device``, where
+    ``actor`` and ``critic`` must already be (the optimiser holds their parameters)."""
     ppo_cfg = ppo_config(cfg)
     loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
+    loss.to(device)
     optim = torch.optim.Adam(loss.parameters(), lr=ppo_cfg.learning_rate)
     sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
     return loss, gae, optim, sched
@@ -78,6 +84,8 @@ def validate(cfg: DictConfig) -> None:
     require_positive("ppo", cfg.ppo, "learning_rate")
     require_count("checkpoint", cfg.checkpoint, "every")
     require_count("", cfg, "torch_threads")
+    resolve_device(cfg.get("device"))
+    runner.collector_workers(cfg)
     if cfg.get("update_threads") is not None:
         require_count("", cfg, "update_threads")
     require_layers("model.layers", cfg.model.get("layers"))
@@ -149,7 +157,7 @@ class OracleTrainer(Trainer):
     collector_kwargs = {"auto_register_policy_transforms": False}  # the oracle is stateless
 
     def __init__(self, cfg: DictConfig, env, networks, actor, loss, gae, optim, sched) -> None:
-        self.cfg, self.env, self.collect_env, self.behaviour = cfg, env, env, actor
+        self.cfg, self.env, self.collect_env, self.behaviour, self.device = cfg, env, env, actor, env.device
         self.networks, self.actor, self.loss, self.gae, self.optim, self.sched = networks, actor, loss, gae, optim, sched
         self.update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
 
@@ -160,6 +168,10 @@ class OracleTrainer(Trainer):
 
     def before_collect(self) -> None:
         set_feedforward(self.env, self.cfg, self.frames)
+
+    def sync_workers(self, workers, first: bool) -> None:
+        """The feedforward gain of the next batch, in every worker's env."""
+        workers.call("env.base_env.set_gait_feedforward", self.env.cfg.gait_feedforward)
 
     def update(self, data) -> dict[str, float]:
         with torch_threads(self.update_threads):  # the physics threads are idle during the update
@@ -180,13 +192,17 @@ class OracleTrainer(Trainer):
 def build(cfg: DictConfig, env=None) -> OracleTrainer:
     """Env, networks, loss, optimiser and counters, restored from the checkpoint to resume."""
     validate(cfg)
+    device = resolve_device(cfg.get("device"))
     torch.set_num_threads(int(cfg.torch_threads))
     torch.manual_seed(int(cfg.env.seed))
-    env = env if env is not None else make_env(cfg.env, mode="oracle")
+    env = env if env is not None else make_env(cfg.env, mode="oracle", device=str(device))
+    if env.device != device:
+        raise ValueError(f"the env given delivers its tensors on {env.device}, this run has device={device}")
     layers = tuple(cfg.model.layers) if cfg.model.get("layers") is not None else None
     max_std = cfg.model.get("max_std")
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std))
-    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo)
+    networks.to(device)  # actor and critic are views of these modules
+    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device)
     trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is None:

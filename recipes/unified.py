@@ -15,10 +15,12 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
     python recipes/unified.py teacher=outputs/oracle_h1/last.pt
     python recipes/unified.py teacher=... hlm.enabled=false          # ablation "w TC-ViT"
     python recipes/unified.py teacher=... student.perception=eph     # baseline EP-H
+    python recipes/unified.py teacher=... device=cuda collector.workers=2   # GPU networks, 2 collecting processes
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from pathlib import Path
 
@@ -47,6 +49,7 @@ from legoh_rl.training.checkpoint import (
     set_rng_state,
 )
 from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.device import resolve_device
 from legoh_rl.training.distill import (
     STUDENT_ACTION_KEY,
     DAggerMixture,
@@ -79,6 +82,8 @@ def validate(cfg: DictConfig) -> None:
     require_positive("ppo", cfg.ppo, "learning_rate")
     require_count("checkpoint", cfg.checkpoint, "every")
     require_count("", cfg, "dagger_epochs", "torch_threads")
+    resolve_device(cfg.get("device"))
+    runner.collector_workers(cfg)
     decay = cfg.get("dagger_decay_iters")
     if decay is not None and not 0 < decay <= cfg.dagger_iters:
         raise ValueError(f"dagger_decay_iters must lie in (0, dagger_iters={cfg.dagger_iters}], got {decay!r}")
@@ -114,7 +119,9 @@ def check_teacher(state: dict, cfg: DictConfig, digest: str, path) -> None:
                               "or allow_new_teacher=true to go on under the new teacher")
 
 
-def make_losses(student, critic, num_actions: int, cfg: DictConfig):
+def make_losses(student, critic, num_actions: int, cfg: DictConfig, device: torch.device | str = "cpu"):
+    """PPO (with GAE), DAgger, masked-VAE and HLM losses, their parameters and buffers on ``device``
+    (where ``student`` and ``critic`` must already be)."""
     ppo_cfg = PPOConfig(clip_epsilon=cfg.ppo.clip_epsilon, entropy_coeff=cfg.ppo.entropy_coeff, gamma=cfg.ppo.gamma,
                         lmbda=cfg.ppo.lmbda, learning_rate=cfg.ppo.learning_rate, desired_kl=cfg.ppo.desired_kl)
     ppo, gae = make_ppo_loss(student.actor, critic, ppo_cfg)
@@ -127,6 +134,8 @@ def make_losses(student, critic, num_actions: int, cfg: DictConfig):
     hlm = HLMLoss(vae, w7=h.w7, w8=0.0 if h.vanilla_vae else h.w8, c_mt=h.c_mt, c_ms=h.c_ms,
                   mask_ratio=mask_ratio, seed=int(cfg.env.seed) + 1)
     hlm.set_keys(action_uni=STUDENT_ACTION_KEY)
+    for module in (ppo, dagger, vae, hlm):
+        module.to(device)
     return ppo, gae, dagger, vae, hlm
 
 
@@ -141,10 +150,19 @@ class UnifiedTrainer(Trainer):
             setattr(self, name, value)
         self.desc = f"unified ({cfg.student.perception})"
         self.behaviour = DAggerMixture(self.student.policy, self.teacher, seed=int(cfg.env.seed))
+        self.env_wrap = functools.partial(student_env, student=self.student)  # each worker's transforms
 
     def before_collect(self) -> None:
         self.behaviour.beta = beta_at(self.iteration, self.cfg)
         self.behaviour.student_mean = self.iteration < self.cfg.dagger_iters
+
+    def sync_workers(self, workers, first: bool) -> None:
+        """The DAgger mixture's beta and mean switch in every worker's policy; first, a coin-flip
+        stream of its own for each (``env.seed + 1000 k``)."""
+        if first:
+            seed = int(self.cfg.env.seed)
+            workers.collector.map_fn("policy.reseed", [(seed + 1000 * k,) for k in range(workers.workers)])
+        workers.call("policy.set_schedule", self.behaviour.beta, self.behaviour.student_mean)
 
     def update(self, data) -> dict[str, float]:
         stats = update(self, data, self.iteration, self.cfg)
@@ -165,15 +183,17 @@ class UnifiedTrainer(Trainer):
 def build(cfg: DictConfig) -> UnifiedTrainer:
     """Teacher, env, student, critic, losses, optimisers and counters (restored on resume)."""
     validate(cfg)
+    device = resolve_device(cfg.get("device"))
     torch.set_num_threads(int(cfg.torch_threads))
     torch.manual_seed(int(cfg.env.seed))
-    teacher = Teacher(cfg.teacher, cfg.env.robot)
-    base = make_env(cfg.env, mode="student", **gait_kwargs(teacher.meta))  # the teacher's gait clock, if any
+    teacher = Teacher(cfg.teacher, cfg.env.robot, device)
+    base = make_env(cfg.env, mode="student", device=str(device), **gait_kwargs(teacher.meta))  # the teacher's clock
     init_std = cfg.student.get("init_std") or float(teacher.action_std.mean())  # null: the teacher's
     student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std))
+    student.policy.to(device)  # perception (in its hold) and locomotion
     env = student_env(base, student)
     critic, critic_nets = teacher.make_critic()
-    ppo, gae, dagger, vae, hlm = make_losses(student, critic, base.A, cfg)
+    ppo, gae, dagger, vae, hlm = make_losses(student, critic, base.A, cfg, device)
     params = list(student.perception.parameters()) + list(student.actor.parameters()) + list(critic.parameters())
     optim = torch.optim.Adam(params, lr=cfg.ppo.learning_rate)
     sched = AdaptiveKLScheduler(optim, cfg.ppo.desired_kl, max_lr=max(cfg.ppo.learning_rate, 1e-2))
@@ -183,10 +203,11 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     replay = None
     if int(rp.get("capacity", 0)) > 0:  # aggregated DAgger data for the locomotion module
         replay = LocomotionReplay(student.actor, int(rp.capacity), int(rp.batch_size), int(rp.steps),
-                                  seed=int(cfg.env.seed) + 2)
+                                  seed=int(cfg.env.seed) + 2, device=device)
     p = UnifiedTrainer(cfg, replay=replay, teacher=teacher, env=base, collect_env=env, student=student, critic=critic,
                        critic_nets=critic_nets, ppo=ppo, gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim,
-                       sched=sched, vae_optim=vae_optim, meta=meta, teacher_sha256=file_digest(cfg.teacher))
+                       sched=sched, vae_optim=vae_optim, meta=meta, teacher_sha256=file_digest(cfg.teacher),
+                       device=device)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is not None:
         state = load_checkpoint(path)

@@ -59,3 +59,11 @@ def test_a_misspelt_env_key_is_an_error():
 
     with pytest.raises(ConfigCompositionException, match="env.levles"):
         composed("oracle_ppo", ["env.levles=[1]"])
+
+
+def test_an_env_key_added_with_a_plus_or_in_a_yaml_is_refused_not_ignored():
+    cfg = composed("oracle_ppo", ["+env.timestep=0.002"])  # hydra accepts a new key; the env would not read it
+    with pytest.raises(ValueError, match=r"env.timestep is not a setting of the recipes' env section"):
+        env_config(cfg.env, "oracle")
+    ec = env_config(composed("oracle_ppo", ["env.pit_depths=[0.1,0.3,0.6,1,1]"]).env, "oracle")
+    assert ec.pit_depths == (0.1, 0.3, 0.6, 1.0, 1.0)

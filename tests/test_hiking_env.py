@@ -494,3 +494,12 @@ def test_set_gait_feedforward_changes_the_pd_targets_from_the_next_step():
     no_clock = make(n=1)
     with pytest.raises(ValueError, match=r"gait_feedforward=0.5 needs a gait clock"):
         no_clock.set_gait_feedforward(0.5)
+
+
+def test_pit_depths_reach_the_training_terrain_and_not_the_benchmark():
+    depths = (0.1, 0.3, 0.6, 1.0, 1.0)
+    env = HikingEnv(HikingEnvConfig(num_envs=2, categories=("gap",), variants=1, num_threads=1, pit_depths=depths))
+    assert env.trails.grid.config.pit_depths == depths
+    env.close()
+    with pytest.raises(ValueError, match=r"pit_depths=\[0.1, 0.3, 0.6, 1.0, 1.0\] is a training setting"):
+        HikingEnvConfig(mode="eval", pit_depths=depths)

@@ -561,6 +561,21 @@ def test_experiment_oracle_h1_footholds_is_stage_2_of_trails(tmp_path):
     assert list(cfg.feedforward_anneal) == [0, 36_900_000] and cfg.env.gait_feedforward == 0.922
 
 
+def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(tmp_path):
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_pit_rungs", f"checkpoint.dir={tmp_path}"])
+    footholds = cfg_of("oracle_ppo", ["experiment=oracle_h1_footholds", f"checkpoint.dir={tmp_path}"])
+    assert cfg.checkpoint.init == "runs/oracle_h1_footholds/last.pt" and Path(cfg.checkpoint.init).is_file()
+    assert cfg.env.reward_overrides == footholds.env.reward_overrides and cfg.ppo == footholds.ppo
+    oracle_ppo.validate(cfg)
+    env = env_config(cfg.env, mode="oracle")
+    assert env.pit_depths == (0.1, 0.3, 0.6, 1.0, 1.0) and env.category_weights == (1.0, 1.5, 1.0, 1.5, 0.6)
+    # the init checkpoint's gain, annealed on stage 2's slope (0.922 over 36.9M frames)
+    start = load_checkpoint(cfg.checkpoint.init)
+    assert math.isclose(cfg.env.gait_feedforward, start["meta"]["gait_feedforward"])
+    assert list(cfg.feedforward_anneal) == [0, 36_900_000 - start["frames"]]
+    assert math.isclose(cfg.env.gait_feedforward / cfg.feedforward_anneal[1], 0.922 / 36_900_000)
+
+
 def test_demo_help_prints_usage_and_runs_nothing(capsys):
     from legoh_rl import demo
 

@@ -146,3 +146,24 @@ def test_heightfield_orientation_matches_queries(grid):
     span = np.ptp(grid.map.bare)
     np.testing.assert_allclose(hit, grid.map.bare[ij[:, 0], ij[:, 1]], atol=1e-5 * span + 1e-6)
     assert grid.map.bare.min() < -0.5  # pits below zero are represented
+
+
+def test_pit_depths_raise_only_the_pit_floors_of_each_level():
+    base_cfg = TrailGridConfig(categories=("gap",), variants=1, seed=4)
+    base = build_trail_grid(base_cfg)
+    rungs = build_trail_grid(TrailGridConfig(categories=("gap",), variants=1, seed=4,
+                                             pit_depths=(0.1, 0.3, 0.6, 1.0, 1.0)))
+    diff = rungs.map.bare - base.map.bare
+    pit = base.map.pit
+    assert np.array_equal(pit, rungs.map.pit) and np.all(diff[~pit] == 0.0)  # only pit samples move
+    for level, lift in enumerate((0.0, 0.7, 0.4, 0.0, 0.0)):  # 1 m benchmark pits above level 0
+        x0, x1 = base.tile_bounds[level, 0, :2]
+        i0, i1 = (np.array([x0, x1]) - base.map.origin[0]) / base.map.resolution
+        sel = np.zeros_like(pit)
+        sel[int(round(i0)):int(round(i1))] = True
+        assert pit[sel].any(), level  # every Gap tile has pits
+        np.testing.assert_allclose(diff[sel & pit], lift, atol=1e-9)
+    with pytest.raises(ValueError, match=r"pit_depths must give one positive depth \(m\) per level \(5\)"):
+        TrailGridConfig(pit_depths=(0.1, 0.3))
+    with pytest.raises(ValueError, match=r"pit_depths must give one positive depth"):
+        TrailGridConfig(pit_depths=(0.1, 0.0, 1.0, 1.0, 1.0))

@@ -30,6 +30,10 @@ class HikingEnvConfig:
             of each batch the hard categories fill (counts by largest remainder).
         levels: difficulty levels the worlds start on (the grid always holds all levels).
         variants: seeded variants per category and level.
+        pit_depths: per level, how deep gap and stepping-stone pits go at most, m (None: the
+            benchmark's 0.1 m on level 0, 1.0 m above). A training schedule can put rungs between
+            level 0's cracks and level 1's drops; the eval mode refuses it (the benchmark's
+            terrain is fixed).
         depth: render the head depth camera (default: off in oracle mode, on otherwise).
         depth_camera: resolution (64x64 default; 128x128 paper), clipping, noise.
         perception_every: control steps per depth frame (5 = 10 Hz at 50 Hz control).
@@ -78,6 +82,7 @@ class HikingEnvConfig:
     category_weights: tuple[float, ...] | None = None
     levels: tuple[int, ...] = (0,)
     variants: int = 2
+    pit_depths: tuple[float, ...] | None = None
     depth: bool | None = None
     depth_camera: DepthCameraConfig = field(default_factory=DepthCameraConfig)
     perception_every: int = 5
@@ -143,6 +148,11 @@ class HikingEnvConfig:
             if len(weights) != len(self.categories) or not all(w > 0 for w in weights):
                 raise ValueError(f"category_weights must hold one positive weight per category "
                                  f"{list(self.categories)}, got {list(weights)}")
+        if self.pit_depths is not None:
+            if self.mode == "eval":
+                raise ValueError(f"pit_depths={list(self.pit_depths)} is a training setting: the eval mode keeps the "
+                                 "benchmark's pits (0.1 m on level 0, 1.0 m above)")
+            self.pit_depths = tuple(float(d) for d in self.pit_depths)
         if not isinstance(self.feet_edge_from_level, int) or self.feet_edge_from_level < 0:
             raise ValueError(f"feet_edge_from_level must be an integer >= 0, got {self.feet_edge_from_level!r}")
 

@@ -752,26 +752,36 @@ class HikingEnv(EnvBase):
         super().close(raise_if_closed=raise_if_closed)
 
     # ------------------------------------------------------------------ checkpoint state
+    #: The exact states of the worker processes that step this env's worlds in slices
+    #: (``collector.workers`` > 1: :class:`~legoh_rl.training.workers.WorkerEnvs` keeps them, this
+    #: env then only mirrors their curriculum and counters); ``None`` when this env is stepped itself.
+    slice_states: list[dict] | None = None
+
     def state_dict(self) -> dict:
-        """Curriculum, rng and counters, for checkpoints (the physics state is not saved)."""
-        return {
+        """Curriculum, rng and counters, for checkpoints (the physics state is not saved); with
+        :attr:`slice_states`, also ``"workers"``: the K workers' own states."""
+        state = {
             "curriculum": self.curriculum.state_dict(),
             "rng": self.rng.bit_generator.state,
             "global_steps": self.global_steps,
             "diverged_total": self.diverged_total,
             "bad_action_total": self.bad_action_total,
         }
+        if self.slice_states is not None:
+            state["workers"] = [dict(s) for s in self.slice_states]
+        return state
 
     def load_state_dict(self, state: dict) -> None:
-        """Restore :meth:`state_dict`."""
+        """Restore :meth:`state_dict` (its ``"workers"`` into :attr:`slice_states`, ``None`` without)."""
         self.curriculum.load_state_dict(state["curriculum"])
         self.rng.bit_generator.state = state["rng"]
         self.global_steps = int(state["global_steps"])
         self.diverged_total = int(state["diverged_total"])
         self.bad_action_total = int(state.get("bad_action_total", 0))  # absent in older checkpoints
+        self.slice_states = state.get("workers")
 
 
 def _default_trails(cfg: HikingEnvConfig) -> TrailSource:
     from legoh_rl.envs.trail_source import trails_for
 
-    return trails_for(cfg.categories, cfg.variants, cfg.seed)
+    return trails_for(cfg.categories, cfg.variants, cfg.seed, pit_depths=cfg.pit_depths)

@@ -12,6 +12,7 @@ from legoh_rl.envs.robots import get_robot_spec
 from legoh_rl.envs.trail_source import validate_categories
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
+from legoh_rl.training.config_store import RECIPE_ENV_KEYS
 
 __all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "gait_kwargs", "require_positive",
            "require_count", "require_layers"]
@@ -51,7 +52,18 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
 
     Keys the section leaves out (or sets to null) keep the dataclass's defaults, which are the only
     place env defaults are written. ``domain_rand: false`` and ``curriculum: false`` switch those off.
+    The env's device is not a key of the section: the recipe's ``device`` sets it (``overrides``).
+
+    Raises:
+        ValueError: the section sets ``device`` (``+env.device=cuda`` was once silently ignored).
     """
+    if cfg.get("device") is not None:
+        raise ValueError(f"env.device={cfg.get('device')!r} is not a setting: the recipe's device=... is the one "
+                         "switch (auto | cpu | cuda[:i]); the env's tensors follow it")
+    unknown = sorted(set(cfg) - set(RECIPE_ENV_KEYS))
+    if unknown:
+        raise ValueError(f"env.{unknown[0]} is not a setting of the recipes' env section (unknown: {unknown}); "
+                         f"the settings are {list(RECIPE_ENV_KEYS)}")
     get_robot_spec(cfg["robot"])  # unknown robot: clear error before any work
     defaults = {f.name: f.default for f in dataclasses.fields(HikingEnvConfig) if f.default is not dataclasses.MISSING}
 
@@ -64,6 +76,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         categories=validate_categories(cfg.get("categories") or defaults["categories"]),
         levels=value("levels", lambda v: tuple(int(x) for x in v)),
         category_weights=value("category_weights", lambda v: tuple(float(w) for w in v)),
+        pit_depths=value("pit_depths", lambda v: tuple(float(d) for d in v)),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
         **{name: value(name, int) for name in ("variants", "seed", "feet_edge_from_level")},
         **{name: value(name, float) for name in ("episode_length_s", "cmd_speed", "gait_period", "gait_stance",
@@ -78,7 +91,8 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
 
 
 def make_env(cfg: Mapping, mode: str, trails=None, **overrides) -> HikingEnv:
-    """Build the batched env of a recipe's ``env`` section."""
+    """Build the batched env of a recipe's ``env`` section (``overrides``: config fields the recipe
+    sets, e.g. ``device``)."""
     return HikingEnv(env_config(cfg, mode, **overrides), trails=trails)
 
 

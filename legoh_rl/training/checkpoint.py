@@ -31,15 +31,23 @@ class CheckpointError(ValueError):
 
 
 def rng_state() -> dict:
-    """Torch, numpy-global and python RNG states."""
-    return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    """Torch, numpy-global and python RNG states, and the CUDA generators' (``"cuda"``, one per GPU)
+    when CUDA is in use: a run on a GPU samples its actions there."""
+    state = {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
 
 
 def set_rng_state(state: dict) -> None:
-    """Restore :func:`rng_state`."""
+    """Restore :func:`rng_state`; the CUDA states only where this machine has as many GPUs (a GPU
+    run resumed on a CPU goes on with the CPU generators alone)."""
     torch.set_rng_state(state["torch"])
     np.random.set_state(state["numpy"])
     random.setstate(state["python"])
+    cuda = state.get("cuda")
+    if cuda is not None and torch.cuda.is_available() and torch.cuda.device_count() == len(cuda):
+        torch.cuda.set_rng_state_all(cuda)
 
 
 def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
@@ -63,6 +71,11 @@ def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     """Load a checkpoint written by :func:`save_checkpoint`.
+
+    Every tensor is loaded to the CPU (``map_location="cpu"``), wherever it was saved from: a
+    checkpoint of a GPU run loads on a machine without one, and the recipes move what they load
+    to their ``device`` (``load_state_dict`` into modules already there; optimisers cast their state
+    to their parameters' device).
 
     Raises:
         FileNotFoundError: no file at ``path`` (the message names it).

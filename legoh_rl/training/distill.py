@@ -26,15 +26,15 @@ class Teacher:
     """A frozen oracle loaded from an ``oracle_ppo.py`` checkpoint.
 
     Args:
-        path: the oracle checkpoint.
+        path: the oracle checkpoint (loaded to the CPU, then moved to ``device``).
         robot: the student's robot (a mismatch is refused).
+        device: where the networks run (the recipe's device).
 
     Attributes:
-        networks: the oracle's networks (no gradients); ``actor`` its ProbabilisticActor;
-        ``critic_state``: the trained critic's weights, to initialise the student's critic.
+        networks: the oracle's networks (no gradients), on ``device``; ``actor`` its ProbabilisticActor.
     """
 
-    def __init__(self, path: str, robot: str) -> None:
+    def __init__(self, path: str, robot: str, device: torch.device | str = "cpu") -> None:
         state = load_checkpoint(path)
         meta = state.get("meta", {})
         if meta.get("kind") != "oracle":
@@ -42,7 +42,8 @@ class Teacher:
         if meta.get("robot") != robot:
             raise ValueError(f"{path}: robot: checkpoint has {meta.get('robot')!r}, this run needs {robot!r}")
         self.meta = meta
-        self.networks = oracle_networks(state)
+        self.device = torch.device(device)
+        self.networks = oracle_networks(state).to(self.device)
         self.networks.requires_grad_(False)
         self.networks.eval()
         self.actor = make_oracle_actor(self.networks)
@@ -65,7 +66,7 @@ class Teacher:
     def make_critic(self):
         """A critic with the oracle's architecture and trained weights (asymmetric: it reads the
         privileged observations, which exist only in simulation, as in the oracle stage)."""
-        networks = OracleNetworks(self.networks.cfg)
+        networks = OracleNetworks(self.networks.cfg).to(self.device)
         networks.load_state_dict(self.networks.state_dict())
         networks.requires_grad_(True)
         return make_oracle_critic(networks), networks
@@ -112,6 +113,27 @@ class DAggerMixture(TensorDictModuleBase):
         self.in_keys = list(dict.fromkeys([*student_policy.in_keys, *teacher.in_keys]))
         self.out_keys = list(dict.fromkeys([*student_policy.out_keys, "action", "teacher_acted"]))
         self._gen = torch.Generator().manual_seed(int(seed))
+
+    def __getstate__(self) -> dict:
+        # the coin-flip generator's state as bytes: pickled as a tensor, a temporary one, it would
+        # reach a spawned collector worker as a shared-memory file freed before the worker reads it
+        state = self.__dict__.copy()
+        state["_gen"] = bytes(self._gen.get_state().numpy())
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        gen = torch.Generator()
+        gen.set_state(torch.frombuffer(bytearray(state["_gen"]), dtype=torch.uint8))
+        super().__setstate__({**state, "_gen": gen})
+
+    def set_schedule(self, beta: float, student_mean: bool) -> None:
+        """Set :attr:`beta` and :attr:`student_mean` (one call: how the training loop sets them in
+        collector worker processes)."""
+        self.beta, self.student_mean = float(beta), bool(student_mean)
+
+    def reseed(self, seed: int) -> None:
+        """Restart the coin flips from ``seed`` (each collector worker its own stream)."""
+        self._gen.manual_seed(int(seed))
 
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         td = self.student_policy(td)

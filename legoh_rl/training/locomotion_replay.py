@@ -37,13 +37,14 @@ class LocomotionReplay:
         action_key: where the teacher's action is stored (``"action_tea"``, written by
             :meth:`~legoh_rl.training.distill.Teacher.label`).
         seed: seeds the sampling.
+        device: where the window is kept and sampled (the network's device).
 
     Raises:
         ValueError: a size below 1 (names it).
     """
 
     def __init__(self, actor, capacity: int, batch_size: int, steps: int, action_key: str = "action_tea",
-                 seed: int = 0) -> None:
+                 seed: int = 0, device: torch.device | str = "cpu") -> None:
         for name, value in (("capacity", capacity), ("batch_size", batch_size), ("steps", steps)):
             if int(value) < 1:
                 raise ValueError(f"LocomotionReplay {name} must be >= 1, got {value!r}")
@@ -53,7 +54,8 @@ class LocomotionReplay:
         self.loss = DAggerLoss(w1=0.0, w2=0.0, w3=1.0)
         self.loss.set_keys(action_tea=action_key, action_uni="loc")
         self._gen = torch.Generator().manual_seed(int(seed))
-        self.buffer = ReplayBuffer(storage=LazyTensorStorage(int(capacity)), sampler=RandomSampler(),
+        self.buffer = ReplayBuffer(storage=LazyTensorStorage(int(capacity), device=torch.device(device)),
+                                   sampler=RandomSampler(),
                                    batch_size=int(batch_size))
 
     def __len__(self) -> int:

@@ -1,4 +1,9 @@
-"""Load a policy checkpoint (oracle, student, or the zero-action baseline) with its eval env."""
+"""Load a policy checkpoint (oracle, student, or the zero-action baseline) with its eval env.
+
+Checkpoints load to the CPU (:func:`~legoh_rl.training.checkpoint.load_checkpoint`) whatever
+device they were trained on; ``device`` moves the policy there and has the env deliver its
+tensors there.
+"""
 
 from __future__ import annotations
 
@@ -31,13 +36,13 @@ class ZeroPolicy(TensorDictModuleBase):
 
 
 def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
-             trails=None, **gait) -> HikingEnv:
-    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds); ``gait``:
-    ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``) of a policy
-    trained with a gait clock."""
+             trails=None, device: torch.device | str = "cpu", **gait) -> HikingEnv:
+    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds), its tensors on
+    ``device``; ``gait``: ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``)
+    of a policy trained with a gait clock."""
     cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
                           categories=tuple(protocol.categories), levels=tuple(protocol.levels),
-                          variants=variants, seed=seed, num_threads=num_threads, **gait)
+                          variants=variants, seed=seed, num_threads=num_threads, device=str(device), **gait)
     return HikingEnv(cfg, trails=trails)
 
 
@@ -48,24 +53,28 @@ def oracle_networks(state: dict) -> OracleNetworks:
     return networks
 
 
-def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint"):
-    """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol``."""
+def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint",
+                 device: torch.device | str = "cpu"):
+    """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol`` (on ``device``)."""
     meta = state["meta"]
-    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails,
+    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails, device=device,
                     **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
     student = make_student(base, meta["perception"], meta["preset"])
     student.perception.load_state_dict(state["perception"])
     student.actor.load_state_dict(state["actor"])
+    student.policy.to(device)
     return student_env(base, student), student.policy, f"student ({meta['perception']})"
 
 
 def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2, seed: int = 0,
-                num_threads=None, trails=None):
-    """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline.
+                num_threads=None, trails=None, device: torch.device | str = "cpu"):
+    """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline, the
+    policy and the env's tensors on ``device``.
 
     A path ending in ``.onnx`` names exported graphs, run with onnxruntime
-    (:func:`~legoh_rl.training.onnx_policy.load_onnx_policy`).
+    (:func:`~legoh_rl.training.onnx_policy.load_onnx_policy`) on the CPU, with the env on the CPU
+    whatever ``device`` says.
 
     Raises:
         FileNotFoundError: no checkpoint at the path.
@@ -73,7 +82,7 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
             observation layout than its eval env.
     """
     if checkpoint == "zero":
-        env = eval_env(robot, protocol, variants, seed, num_threads, trails=trails)
+        env = eval_env(robot, protocol, variants, seed, num_threads, trails=trails, device=device)
         return env, ZeroPolicy(env.A), "zero-action"
     if str(checkpoint).endswith(".onnx"):  # graphs from export_policy.py --format onnx
         from legoh_rl.training.onnx_policy import load_onnx_policy
@@ -83,11 +92,12 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
     meta = state.get("meta", {})
     kind = meta.get("kind")
     if kind == "oracle":
-        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, **gait_kwargs(meta))
+        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, device=device,
+                       **gait_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), checkpoint)
-        return env, make_oracle_actor(oracle_networks(state)), "oracle"
+        return env, make_oracle_actor(oracle_networks(state).to(device)), "oracle"
     if kind == "student":
-        return load_student(state, protocol, variants, seed, num_threads, trails=trails, path=checkpoint)
+        return load_student(state, protocol, variants, seed, num_threads, trails=trails, path=checkpoint, device=device)
     raise ValueError(f"{checkpoint}: unknown checkpoint kind {kind!r}; expected 'oracle' or 'student'")
 
 

@@ -9,6 +9,14 @@ once:
 * a torchrl :class:`~torchrl.collectors.Collector` gathers ``env.num_envs x
   collector.steps_per_env`` steps per iteration until ``collector.total_frames`` run frames,
   through torchrl's ``RewardSum`` and ``StepCounter`` (episode return and length for the logs);
+  with ``collector.workers=K > 1``, a :class:`~torchrl.collectors.MultiSyncCollector` over K
+  processes, each stepping ``N / K`` of the worlds (:mod:`legoh_rl.training.workers`: their env
+  state reaches the logs and checkpoints through the trainer's ``env``, which mirrors it); with
+  ``collector.backend=ray``, torchrl's :class:`~torchrl.collectors.distributed.RayCollector` over K
+  Ray actors, on this machine or a cluster's nodes, with the same slices and the same mirroring
+  (:mod:`legoh_rl.training.ray_collection`);
+* the run's config records the device it computes on (``device``, resolved from ``auto``:
+  :func:`~legoh_rl.training.device.resolve_device`);
 * every ``checkpoint.every`` iterations, and at the end, ``last.pt`` is written atomically with
   the trainer's state, the env (curriculum, randomisation), the RNG states, the counters, the
   resolved config and the provenance (``experiment``, ``stage`` in the meta block); the logs are
@@ -20,6 +28,7 @@ once:
 
 from __future__ import annotations
 
+import copy
 import sys
 import time
 from abc import ABC, abstractmethod
@@ -27,19 +36,23 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from omegaconf import DictConfig, OmegaConf
+import torch
+from omegaconf import DictConfig, OmegaConf, open_dict
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
-from legoh_rl.training.checkpoint import rng_state, save_checkpoint
+from legoh_rl.training import ray_collection  # works without Ray (an optional extra)
+from legoh_rl.training.checkpoint import CheckpointError, rng_state, save_checkpoint
+from legoh_rl.training.device import resolve_device
 from legoh_rl.training.interrupt import GracefulStop
 from legoh_rl.training.run_dir import open_run_dir
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.videos import policy_video
+from legoh_rl.training.workers import WorkerEnvs, check_workers, make_worker_collector
 
-__all__ = ["Trainer", "train", "provenance", "finish"]
+__all__ = ["Trainer", "train", "provenance", "finish", "collector_workers", "collector_backend"]
 
 
 class Trainer(ABC):
@@ -54,6 +67,11 @@ class Trainer(ABC):
         iteration, frames: counters (restored on resume); ``run_id``: the logger run to continue.
         desc: the progress bar's label.
         collector_kwargs: extra keyword arguments of the collector.
+        device: where the networks, losses and updates are (the resolved ``device`` setting).
+        env_wrap: ``collect_env = env_wrap(env)`` (``None``: ``collect_env`` is ``env``); with
+            ``collector.workers > 1`` (or ``collector.backend=ray``) each worker wraps its own slice
+            of the worlds with it, so it must be picklable (a module-level function or a
+            ``functools.partial`` of one).
     """
 
     env = None
@@ -65,9 +83,17 @@ class Trainer(ABC):
     run_id: str | None = None
     desc: str = "training"
     collector_kwargs: dict = {}
+    device: torch.device = torch.device("cpu")
+    env_wrap: Callable | None = None
 
     def before_collect(self) -> None:  # noqa: B027 (optional hook: most trainers have no schedule)
         """Set what the next batch is collected with (schedules over ``frames`` / ``iteration``)."""
+
+    def sync_workers(self, workers: WorkerEnvs, first: bool) -> None:  # noqa: B027 (optional hook)
+        """``collector.workers > 1`` (or ``collector.backend=ray``): tell the worker processes what
+        :meth:`before_collect` set for the next batch (``workers.call(path, *args)`` runs a method of
+        each worker's collector: ``"env.base_env.<method>"``, ``"policy.<method>"``); ``first``:
+        before the first batch."""
 
     @abstractmethod
     def update(self, data) -> dict[str, float]:
@@ -97,12 +123,17 @@ def train(cfg: DictConfig, validate: Callable[[DictConfig], None], build: Callab
         checkpoint, ``interrupted`` (the signal number).
     """
     validate(cfg)
+    cfg = copy.deepcopy(cfg)
+    with open_dict(cfg):  # the run's config (logs, checkpoint) records the device it ran on: "auto" resolved
+        cfg.device = str(resolve_device(cfg.get("device")))
     with open_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False))), \
             GracefulStop() as stop:
-        return _loop(cfg, build(cfg), stop)
+        t = build(cfg)
+        workers = collector_workers(cfg)
+        return _loop(cfg, t, stop, _check_slices(cfg, t, workers, _pooled(cfg, workers)))
 
 
-def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
+def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) -> dict:
     ckpt_dir = Path(cfg.checkpoint.dir)
     run = RunLog(cfg, ckpt_dir, t.run_id, t.frames)
     frames_per_batch = cfg.env.num_envs * cfg.collector.steps_per_env
@@ -111,10 +142,33 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
         print(f"nothing left to train: {t.frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": t.iteration, "frames": t.frames}
     t.before_collect()
-    # torchrl's episode counters: the return and length of each ended episode, for the logs
-    collect_env = TransformedEnv(t.collect_env, Compose(RewardSum(), StepCounter()))
-    collector = Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=remaining,
-                          exploration_type=ExplorationType.RANDOM, **t.collector_kwargs)
+    workers = collector_workers(cfg)
+    pool, threads = None, torch.get_num_threads()
+    if not _pooled(cfg, workers):
+        # torchrl's episode counters: the return and length of each ended episode, for the logs
+        collect_env = TransformedEnv(t.collect_env, Compose(RewardSum(), StepCounter()))
+        collector = Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=remaining,
+                              exploration_type=ExplorationType.RANDOM, **t.collector_kwargs)
+    elif collector_backend(cfg) == "ray":  # K Ray actors, each its slice (legoh_rl/training/ray_collection.py)
+        collector = ray_collection.make_ray_collector(
+            t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, remaining,
+            ray_collection.ray_options(cfg.collector.get("ray")), t.device, exploration_type=ExplorationType.RANDOM,
+            **t.collector_kwargs)
+    else:  # K processes, each its slice of the worlds (legoh_rl/training/workers.py)
+        collector = make_worker_collector(t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, remaining,
+                                          int(cfg.get("torch_threads") or 1), exploration_type=ExplorationType.RANDOM,
+                                          **t.collector_kwargs)
+    if _pooled(cfg, workers):
+        try:
+            pool = WorkerEnvs(collector, t.env)
+            if reseed is None:  # a fresh run: the workers' own initial state
+                pool.pull()
+            else:  # the workers continue from the checkpoint's state, on freshly reset worlds
+                pool.push(reseed=reseed)
+            t.sync_workers(pool, first=True)
+        except BaseException:
+            collector.shutdown()
+            raise
 
     def checkpoint() -> Path:
         path = save_checkpoint(ckpt_dir / "last.pt", {
@@ -129,37 +183,107 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop) -> dict:
     summary: dict = {}
     bar = tqdm(total=remaining, unit="frames", desc=t.desc)
     collected = time.perf_counter()
-    for data in collector:
-        started = time.perf_counter()
-        collect_s = started - collected
-        stats = t.update(data)
-        collector.update_policy_weights_()
-        t.iteration += 1
-        t.frames += data.numel()
-        bar.update(data.numel())
-        stats["train/update_s"] = time.perf_counter() - started
-        stats["train/collect_s"] = collect_s
-        t.before_collect()  # before the checkpoint, so that it holds the settings its resume collects with
-        stats = run.log(t.iteration, t.frames, data, t.env, stats)
-        bar.set_postfix(t.postfix(stats))
-        if t.iteration % cfg.checkpoint.every == 0:
-            checkpoint()
-        if video_every and t.iteration % video_every == 0:
-            path = checkpoint() if t.iteration % cfg.checkpoint.every else ckpt_dir / "last.pt"
-            run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",
-                                   t.env.trails.categories, int(np.median(t.env.curriculum.levels)),
-                                   seconds=float(cfg.logger.get("video_seconds", 4.0))), t.frames)
-        summary = {"iteration": t.iteration, "frames": t.frames, **stats}
-        collected = time.perf_counter()
-        if stop.signum is not None:
-            summary["interrupted"] = stop.signum
-            break
-    bar.close()
-    collector.shutdown()
+    try:
+        for data in collector:
+            if pool is not None:
+                pool.pull()  # the workers' curriculum and counters, for the logs and the checkpoint
+            started = time.perf_counter()
+            collect_s = started - collected
+            stats = t.update(data)
+            collector.update_policy_weights_()  # Ray: the trained policy's weights, sent to every worker
+            t.iteration += 1
+            t.frames += data.numel()
+            bar.update(data.numel())
+            stats["train/update_s"] = time.perf_counter() - started
+            stats["train/collect_s"] = collect_s
+            t.before_collect()  # before the checkpoint, so that it holds the settings its resume collects with
+            if pool is not None:
+                t.sync_workers(pool, first=False)
+            stats = run.log(t.iteration, t.frames, data, t.env, stats)
+            bar.set_postfix(t.postfix(stats))
+            if t.iteration % cfg.checkpoint.every == 0:
+                checkpoint()
+            if video_every and t.iteration % video_every == 0:
+                path = checkpoint() if t.iteration % cfg.checkpoint.every else ckpt_dir / "last.pt"
+                run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",
+                                       t.env.trails.categories, int(np.median(t.env.curriculum.levels)),
+                                       seconds=float(cfg.logger.get("video_seconds", 4.0))), t.frames)
+            summary = {"iteration": t.iteration, "frames": t.frames, **stats}
+            collected = time.perf_counter()
+            if stop.signum is not None:
+                summary["interrupted"] = stop.signum
+                break
+    finally:
+        bar.close()
+        collector.shutdown()
+        torch.set_num_threads(threads)  # torchrl's multi-process collector changes the main process's count
     summary["checkpoint"] = str(checkpoint())
     run.close()
     return summary
 
+
+def collector_workers(cfg: DictConfig) -> int:
+    """``collector.workers`` (1 when absent), checked to divide ``env.num_envs``; the collector's
+    backend is checked too (:func:`collector_backend`)."""
+    workers = check_workers(cfg.collector.get("workers", 1), int(cfg.env.num_envs))
+    collector_backend(cfg)
+    return workers
+
+
+def collector_backend(cfg: DictConfig) -> str:
+    """``collector.backend`` (``"local"`` when absent), checked; for ``"ray"``, the ``collector.ray``
+    section too, and that Ray is installed.
+
+    Raises:
+        ValueError: an unknown backend or a bad ``collector.ray`` value (names the setting and value).
+        ImportError: ``collector.backend=ray`` without Ray installed (names ``pip install 'legoh-rl[ray]'``).
+    """
+    backend = ray_collection.collector_backend(cfg.collector)
+    if backend == "ray":
+        ray_collection.ray_options(cfg.collector.get("ray"))
+        ray_collection.import_ray()
+    return backend
+
+
+def _pooled(cfg: DictConfig, workers: int) -> bool:
+    """Whether worker processes step the worlds (their env state mirrored into the trainer's env):
+    ``collector.workers > 1``, or any number of Ray workers."""
+    return workers > 1 or collector_backend(cfg) == "ray"
+
+
+def _check_slices(cfg: DictConfig, t: Trainer, workers: int, pooled: bool) -> bool | None:
+    """Whether the env state ``t.env`` was restored with fits ``workers`` collector processes
+    (``pooled``: workers step the worlds, not the main process; the local and Ray backends slice and
+    seed alike, so either resumes the other's checkpoint with the same ``workers``).
+
+    Returns:
+        ``None`` for a fresh run; for a resumed one, whether the workers' random streams start
+        afresh (``collector.allow_new_workers``: the checkpoint's came from another number of workers).
+
+    Raises:
+        CheckpointError: the checkpoint's env state was collected by another number of workers
+            (names both, and the two ways on).
+    """
+    saved = t.env.slice_states
+    if t.iteration == 0 and t.frames == 0:  # fresh (checkpoint.init only brings networks)
+        t.env.slice_states = None
+        return None
+    have = 1 if saved is None else len(saved)
+    same = have == workers and (saved is None) == (not pooled)  # one process <-> one Ray worker: not the same
+    if not same and not cfg.collector.get("allow_new_workers", False):
+        by = "the main process itself" if saved is None else f"{have} worker process(es)"
+        now = f"collector.workers={workers}" + (" (a Ray worker)" if pooled and workers == 1 else "")
+        back = "collector.backend=local collector.workers=1" if saved is None else f"collector.workers={have}"
+        raise CheckpointError(
+            f"checkpoint.resume: the run in {cfg.checkpoint.dir} was collected by {by}, this run "
+            f"has {now}: each worker has its own env random stream, which cannot be split or "
+            f"merged exactly. Resume with {back}, or pass collector.allow_new_workers=true to go on "
+            "with the curriculum levels and counters carried over and the workers' env random streams afresh "
+            "(env.seed + k)")
+    if not pooled:
+        t.env.slice_states = None  # this env is stepped itself from now on
+        return False
+    return not same
 
 def finish(summary: dict) -> None:
     """A recipe's last words: what was trained and where it went; exit 128 + signal when a signal

@@ -107,6 +107,10 @@ class TrailGridConfig:
         base_depth: depth of MuJoCo's heightfield base box below the lowest sample, metres.
         ground_friction: sliding friction of the heightfield geom.
         max_goals: goals per tile are padded to this count (raises if a trail needs more).
+        pit_depths: per level, how deep gap and stepping-stone pits go at most, metres (one value
+            per level; ``None``: the benchmark's 0.1 m on level 0 and 1.0 m above). A training
+            curriculum can give the deep pits intermediate rungs this way; evaluation grids keep
+            ``None``.
     """
 
     categories: tuple[str, ...] = CATEGORIES
@@ -123,6 +127,7 @@ class TrailGridConfig:
     base_depth: float = 1.0
     ground_friction: float = 1.0
     max_goals: int = 24
+    pit_depths: tuple[float, ...] | None = None
     _all: tuple[str, ...] = field(init=False, repr=False, compare=False, default=())
 
     def __post_init__(self) -> None:
@@ -172,6 +177,14 @@ class TrailGridConfig:
             raise ValueError(f"ground_friction must be > 0, got {self.ground_friction!r}")
         if not isinstance(self.max_goals, int) or self.max_goals < 2:
             raise ValueError(f"max_goals must be an integer >= 2, got {self.max_goals!r}")
+        if self.pit_depths is not None:
+            depths = tuple(float(d) for d in self.pit_depths)
+            if len(depths) != self.num_levels or not all(math.isfinite(d) and d > 0 for d in depths):
+                raise ValueError(
+                    f"pit_depths must give one positive depth (m) per level ({self.num_levels}), "
+                    f"got {self.pit_depths!r}"
+                )
+            object.__setattr__(self, "pit_depths", depths)
 
     @property
     def all_categories(self) -> tuple[str, ...]:

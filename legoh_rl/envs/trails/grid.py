@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from .config import TrailGridConfig
+from .levels import pit_depth
 from .mujoco_spec import HFIELD_GEOM, add_terrain_to_spec, obstacle_geom_name
 from .obstacles import Obstacle
 from .patch import num_samples
@@ -93,8 +94,10 @@ class TrailGrid:
         for r, row in enumerate(trails):
             for c, t in enumerate(row):
                 i0, j0 = nb + r * tx, nb + c * ty
-                bare[i0 : i0 + tx, j0 : j0 + ty] = t.heights
-                surface[i0 : i0 + tx, j0 : j0 + ty] = t.surface
+                # pits of a shallower curriculum rung: their floors raised by the difference
+                lift = _pit_lift(config, t.level) * t.pit
+                bare[i0 : i0 + tx, j0 : j0 + ty] = t.heights + lift
+                surface[i0 : i0 + tx, j0 : j0 + ty] = t.surface + lift
                 pit[i0 : i0 + tx, j0 : j0 + ty] = t.pit
                 ox, oy = i0 * res, j0 * res
                 shift = np.array([ox, oy + t.width / 2.0, 0.0])
@@ -249,6 +252,14 @@ class TrailGrid:
         from .mesh import export_scene
 
         return export_scene(self.to_trimesh(row, column), path)
+
+
+def _pit_lift(config: TrailGridConfig, level: int) -> float:
+    """How far the pit floors of a level-``level`` tile are raised: the benchmark's depth minus
+    ``config.pit_depths[level]`` (0 without ``pit_depths``, or where that is not shallower)."""
+    if config.pit_depths is None:
+        return 0.0
+    return max(0.0, pit_depth(level) - config.pit_depths[level])
 
 
 def build_trail_grid(config: TrailGridConfig | None = None) -> TrailGrid:
