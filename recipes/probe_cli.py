@@ -1,5 +1,5 @@
 """Command-line arguments shared by the probe recipes (``gait_stats.py``, ``route_following.py``,
-``imitation_gap.py``):
+``imitation_gap.py``, ``footholds.py``):
 a checkpoint rolled out on one (category, level) cell of evaluation trails."""
 
 from __future__ import annotations
