@@ -142,33 +142,8 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
         print(f"nothing left to train: {t.frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": t.iteration, "frames": t.frames}
     t.before_collect()
-    workers = collector_workers(cfg)
-    pool, threads = None, torch.get_num_threads()
-    if not _pooled(cfg, workers):
-        # torchrl's episode counters: the return and length of each ended episode, for the logs
-        collect_env = TransformedEnv(t.collect_env, Compose(RewardSum(), StepCounter()))
-        collector = Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=remaining,
-                              exploration_type=ExplorationType.RANDOM, **t.collector_kwargs)
-    elif collector_backend(cfg) == "ray":  # K Ray actors, each its slice (legoh_rl/training/ray_collection.py)
-        collector = ray_collection.make_ray_collector(
-            t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, remaining,
-            ray_collection.ray_options(cfg.collector.get("ray")), t.device, exploration_type=ExplorationType.RANDOM,
-            **t.collector_kwargs)
-    else:  # K processes, each its slice of the worlds (legoh_rl/training/workers.py)
-        collector = make_worker_collector(t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, remaining,
-                                          int(cfg.get("torch_threads") or 1), exploration_type=ExplorationType.RANDOM,
-                                          **t.collector_kwargs)
-    if _pooled(cfg, workers):
-        try:
-            pool = WorkerEnvs(collector, t.env)
-            if reseed is None:  # a fresh run: the workers' own initial state
-                pool.pull()
-            else:  # the workers continue from the checkpoint's state, on freshly reset worlds
-                pool.push(reseed=reseed)
-            t.sync_workers(pool, first=True)
-        except BaseException:
-            collector.shutdown()
-            raise
+    threads = torch.get_num_threads()
+    collector, pool = _collector(cfg, t, frames_per_batch, remaining, reseed)
 
     def checkpoint() -> Path:
         path = save_checkpoint(ckpt_dir / "last.pt", {
@@ -220,6 +195,38 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
     summary["checkpoint"] = str(checkpoint())
     run.close()
     return summary
+
+
+def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames: int, reseed: bool | None):
+    """``(collector, pool)``: torchrl's ``Collector`` on the trainer's own env (``pool`` None), or,
+    when workers step the worlds, a ``MultiSyncCollector`` of K processes or a ``RayCollector`` of
+    K actors with the :class:`WorkerEnvs` that mirrors their env state (``reseed``: from
+    :func:`_check_slices`; ``None`` for a fresh run)."""
+    workers = collector_workers(cfg)
+    kwargs = dict(exploration_type=ExplorationType.RANDOM, **t.collector_kwargs)
+    if not _pooled(cfg, workers):
+        # torchrl's episode counters: the return and length of each ended episode, for the logs
+        collect_env = TransformedEnv(t.collect_env, Compose(RewardSum(), StepCounter()))
+        return Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=total_frames,
+                         **kwargs), None
+    if collector_backend(cfg) == "ray":  # K Ray actors, each its slice (legoh_rl/training/ray_collection.py)
+        collector = ray_collection.make_ray_collector(
+            t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, total_frames,
+            ray_collection.ray_options(cfg.collector.get("ray")), t.device, **kwargs)
+    else:  # K processes, each its slice of the worlds (legoh_rl/training/workers.py)
+        collector = make_worker_collector(t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, total_frames,
+                                          int(cfg.get("torch_threads") or 1), **kwargs)
+    try:
+        pool = WorkerEnvs(collector, t.env)
+        if reseed is None:  # a fresh run: the workers' own initial state
+            pool.pull()
+        else:  # the workers continue from the checkpoint's state, on freshly reset worlds
+            pool.push(reseed=reseed)
+        t.sync_workers(pool, first=True)
+    except BaseException:
+        collector.shutdown()
+        raise
+    return collector, pool
 
 
 def collector_workers(cfg: DictConfig) -> int:
@@ -284,6 +291,7 @@ def _check_slices(cfg: DictConfig, t: Trainer, workers: int, pooled: bool) -> bo
         t.env.slice_states = None  # this env is stepped itself from now on
         return False
     return not same
+
 
 def finish(summary: dict) -> None:
     """A recipe's last words: what was trained and where it went; exit 128 + signal when a signal
