@@ -15,6 +15,9 @@ checkpoints are written atomically and can be resumed.
 
 from __future__ import annotations
 
+import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when torch loads)
+
+# isort: split
 from pathlib import Path
 
 import hydra

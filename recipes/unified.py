@@ -20,6 +20,9 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
 
 from __future__ import annotations
 
+import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when torch loads)
+
+# isort: split
 import functools
 import hashlib
 from pathlib import Path
