@@ -1,0 +1,335 @@
+"""recipes/paper_tables.py: the transcribed paper numbers, the row -> checkpoint mapping on
+hand-made meta blocks, the tables written from hand-made results, the command line's errors,
+and one tiny end-to-end run of the committed H1 oracle."""
+
+import csv
+import math
+import re
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "recipes"))
+
+import paper_tables as pt  # noqa: E402
+
+TEX = ROOT.parent / "shared" / "reference" / "lego-h-paper.tex"
+SIX = ("success", "trail_completion", "traverse_rate", "mev", "ttf", "time_to_reach")
+
+
+def paper_row(table: str, method: str, group: str = "overall") -> pt.PaperRow:
+    return next(r for r in pt.TABLES[table].rows if r.method == method and r.group == group)
+
+
+# ---------------------------------------------------------------------------------------------
+# the paper's numbers
+
+
+def test_hand_picked_paper_numbers():
+    assert paper_row("ablation", "LEGO-H").paper["success"] == (68.40, 1.34)  # RESULTS.md
+    assert paper_row("ablation", "Oracle").paper["success"] == (71.20, 0.72)
+    assert paper_row("ablation", "Oracle").paper["time_to_reach"] == (4.59, 0.08)
+    assert paper_row("ablation", "w TC-ViT (no HLM)").paper["mev"] == (10.40, 1.50)
+    assert paper_row("ablation", "Vanilla (ConvGRU)").paper["ttf"] == (5.36, 0.10)
+    assert paper_row("g1", "G1 (LEGO-H)").paper["success"] == (63.96, 1.03)  # RESULTS.md
+    assert paper_row("g1", "G1 (LEGO-H)").paper["trail_completion"] == (38.94, 0.63)
+    assert paper_row("benchmark", "RMA-H").paper["traverse_rate"] == (74.61, 0.93)
+    assert paper_row("benchmark", "RMA-B").paper["ttf"] == (5.22, 0.03)
+    assert paper_row("gru_ct", "w CTs").paper == {"success": (27.85, 1.02), "trail_completion": None,
+                                                  "traverse_rate": None, "mev": None, "ttf": (5.44, 0.34),
+                                                  "time_to_reach": None}
+    assert paper_row("hlm_vae", "Vanilla VAE").paper["mev"] == (9.26, 1.08)
+    assert paper_row("hlm_plugin", "EP-H + HLM").paper["time_to_reach"] == (7.80, 0.37)
+    assert paper_row("terrains", "RMA-B", "hurdle").paper["success"] == (83.04, 0.27)
+    assert paper_row("terrains", "EP-H", "forest").paper["trail_completion"] == (1.04, 0.16)
+    assert tuple(pt.METRICS) == SIX
+    assert [higher for _, higher in pt.METRICS.values()] == [True, True, True, False, True, False]
+
+
+def test_every_paper_row_has_the_six_metrics_and_a_checkpoint_row():
+    labels = {t.name: t.label for t in pt.TABLES.values()}
+    assert labels == {"ablation": "tab:ablation_h1", "benchmark": "tab:hiking_benchmark", "gru_ct": "tab:ablation_gru",
+                      "hlm_vae": "tab:vae", "hlm_plugin": "plug", "g1": "tab:g1",
+                      "terrains": "tab:hiking_benchmark_terrains"}
+    lego_h = paper_row("ablation", "LEGO-H").paper
+    for table in pt.TABLES.values():
+        assert table.rows
+        for row in table.rows:
+            assert row.key in pt.ROWS
+            if row.paper is None:  # ours only (the G1 oracle)
+                assert row.key == "g1_oracle"
+                continue
+            assert tuple(row.paper) == SIX
+            given = [m for m in SIX if row.paper[m] is not None]
+            assert given == (["success", "ttf"] if table.name == "gru_ct" else list(SIX)), (table.name, row.method)
+            for m in given:
+                mean, std = row.paper[m]
+                assert mean >= 0 and 0 <= std < 5, (table.name, row.method, m)
+            if row.key == "h1_lego_h":  # LEGO-H on H1 is one set of figures in every table
+                assert all(row.paper[m] == lego_h[m] for m in given), table.name
+    assert {r.group for r in pt.TABLES["terrains"].rows} == {"randommix", "ditch", "hurdle", "gap", "forest"}
+
+
+@pytest.mark.skipif(not TEX.is_file(), reason="the paper's tex is not beside the checkout")
+def test_every_paper_number_matches_the_tex():
+    tex = TEX.read_text()
+    num = re.compile(r"\$(\d+\.\d+)\\pm(\d+\.\d+)\$")
+    names = {"Success": "success", "Trail": "trail_completion", "Traverse": "traverse_rate", "MEV": "mev",
+             "TTF": "ttf", "T2R": "time_to_reach", "Time-to-Reach": "time_to_reach"}
+    for table in pt.TABLES.values():
+        at = tex.index(f"\\label{{{table.label}}}")
+        body = tex[tex.rfind("\\begin{table", 0, at):tex.index("\\end{table", at)]
+        body = body[body.index("\\midrule"):]
+        if table.name == "terrains":  # methods as rows, one block per category
+            parts = re.split(r"\\textbf\{(RandomMix|Ditch|Hurdle|Gap|Forest)\}", body)
+            for category, block in zip(parts[1::2], parts[2::2], strict=True):
+                for line in block.splitlines():
+                    m = re.match(r"\s*(EP-H|RMA-B)\s*&", line)
+                    if m:
+                        want = [(float(a), float(b)) for a, b in num.findall(line)]
+                        got = paper_row("terrains", m.group(1), category.lower()).paper
+                        assert [got[k] for k in SIX] == want, (category, m.group(1))
+            continue
+        cols = [r for r in table.rows if r.paper is not None]
+        seen = set()
+        for line in body.splitlines():
+            if "\\pm" not in line:
+                continue
+            metric = next(v for k, v in names.items() if line.strip().startswith(k))
+            seen.add(metric)
+            assert [r.paper[metric] for r in cols] == [(float(a), float(b)) for a, b in num.findall(line)], \
+                (table.name, metric)
+        assert all(r.paper[m] is None for r in cols for m in SIX if m not in seen)
+
+
+# ---------------------------------------------------------------------------------------------
+# row -> checkpoint
+
+
+def student_meta(robot="h1", perception="tcvit", **extra):
+    return {"robot": robot, "kind": "student", "perception": perception, "preset": "cpu", **extra}
+
+
+def hlm_config(enabled, vanilla_vae=False):
+    return {"hlm": {"enabled": enabled, "vanilla_vae": vanilla_vae}}
+
+
+def test_checkpoint_info_reads_hlm_from_the_meta_or_else_the_training_config():
+    info = pt.checkpoint_info(student_meta(), hlm_config(False))
+    assert (info.robot, info.kind, info.perception, info.hlm, info.vanilla_vae) == ("h1", "student", "tcvit", False, False)
+    assert pt.checkpoint_info(student_meta(), hlm_config(True)).hlm is True
+    assert pt.checkpoint_info(student_meta(hlm=True), hlm_config(False)).hlm is True  # the meta wins
+    vae = pt.checkpoint_info(student_meta(), hlm_config(True, vanilla_vae=True))
+    assert vae.hlm and vae.vanilla_vae
+    assert pt.checkpoint_info(student_meta(), hlm_config(False, vanilla_vae=True)).vanilla_vae is False  # no HLM: no prior
+    warm = hlm_config(True)
+    warm["hlm"]["warmup_iters"] = 100
+    assert pt.checkpoint_info(student_meta(), warm, iteration=99).hlm is False  # L_hie not joined yet
+    assert pt.checkpoint_info(student_meta(), warm, iteration=100).hlm is True
+    unknown = pt.checkpoint_info(student_meta(), None)
+    assert unknown.hlm is None and unknown.vanilla_vae is None
+    oracle = pt.checkpoint_info({"robot": "h1", "kind": "oracle"}, hlm_config(True))
+    assert oracle.kind == "oracle" and oracle.hlm is None and oracle.perception is None
+    assert pt.describe(pt.checkpoint_info(student_meta(), hlm_config(False))) == "H1 student (tcvit, HLM off)"
+    assert pt.describe(vae) == "H1 student (tcvit, HLM on, vanilla VAE)"
+
+
+def test_rows_take_only_checkpoints_that_match_them():
+    rows = pt.ROWS
+    no_hlm = pt.checkpoint_info(student_meta(), hlm_config(False))
+    with_hlm = pt.checkpoint_info(student_meta(), hlm_config(True))
+    assert pt.mismatch(rows["h1_no_hlm"], no_hlm) is None
+    assert pt.mismatch(rows["h1_lego_h"], no_hlm) == "HLM off, the row needs HLM on"
+    assert pt.mismatch(rows["h1_lego_h"], with_hlm) is None
+    assert pt.mismatch(rows["h1_no_hlm"], with_hlm) == "HLM on, the row needs HLM off"
+    assert pt.mismatch(rows["g1_lego_h"], with_hlm) == "robot 'h1', the row needs 'g1'"
+    assert "HLM on or off is not recorded" in pt.mismatch(rows["h1_lego_h"], pt.checkpoint_info(student_meta()))
+    vae = pt.checkpoint_info(student_meta(), hlm_config(True, vanilla_vae=True))
+    assert pt.mismatch(rows["h1_vanilla_vae"], vae) is None
+    assert pt.mismatch(rows["h1_lego_h"], vae) == "a vanilla VAE, the row needs the masked VAE"
+    eph = pt.checkpoint_info(student_meta(perception="eph"), hlm_config(True))
+    assert pt.mismatch(rows["h1_eph_hlm"], eph) is None
+    assert pt.mismatch(rows["h1_eph"], eph) == "HLM on, the row needs HLM off"
+    assert pt.mismatch(rows["h1_lego_h"], eph) == "perception 'eph', the row needs 'tcvit'"
+    for key, perception in [("h1_vanilla", "vanilla"), ("h1_ct", "tcvit_ct"), ("h1_rmah", "rmah"), ("h1_rmab", "rmab")]:
+        for hlm in (True, False):  # the paper does not say: either
+            assert pt.mismatch(rows[key], pt.checkpoint_info(student_meta(perception=perception), hlm_config(hlm))) is None
+    oracle = pt.checkpoint_info({"robot": "h1", "kind": "oracle"})
+    assert pt.mismatch(rows["h1_oracle"], oracle) is None
+    assert pt.mismatch(rows["h1_lego_h"], oracle) == "kind 'oracle', the row needs 'student'"
+    assert rows["h1_lego_h"].paths == ("student_h1.pt",) and rows["g1_lego_h"].paths == ("student_g1.pt",)
+    assert rows["h1_no_hlm"].paths == ("ablations/h1_no_hlm.pt", "student_h1.pt")
+    for key in ("h1_vanilla", "h1_eph", "h1_rmah", "h1_rmab", "h1_ct", "h1_vanilla_vae", "h1_eph_hlm"):
+        assert rows[key].paths == (f"ablations/{key}.pt",)
+
+
+def fake_checkpoint(path: Path, meta: dict, config: dict | None = None) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({"meta": meta, **({"config": config} if config else {})}, path)
+    return path
+
+
+def test_student_h1_is_lego_h_with_hlm_and_the_tc_vit_row_without(tmp_path):
+    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(False))
+    lego = pt.resolve_row(pt.ROWS["h1_lego_h"], tmp_path)
+    assert not lego.found and lego.path == tmp_path / "student_h1.pt"
+    assert lego.note == f"{tmp_path / 'student_h1.pt'} holds the H1 student (tcvit, HLM off): HLM off, the row needs HLM on"
+    no_hlm = pt.resolve_row(pt.ROWS["h1_no_hlm"], tmp_path)
+    assert no_hlm.found and no_hlm.path == tmp_path / "student_h1.pt"
+    fake_checkpoint(tmp_path / "ablations" / "h1_no_hlm.pt", student_meta(), hlm_config(False))
+    assert pt.resolve_row(pt.ROWS["h1_no_hlm"], tmp_path).path == tmp_path / "ablations" / "h1_no_hlm.pt"
+    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(True))
+    assert pt.resolve_row(pt.ROWS["h1_lego_h"], tmp_path).found
+    missing = pt.resolve_row(pt.ROWS["h1_rmab"], tmp_path)
+    assert (missing.found, missing.path, missing.note) == (False, tmp_path / "ablations" / "h1_rmab.pt", "")
+
+
+# ---------------------------------------------------------------------------------------------
+# tables from hand-made results
+
+
+def aggregate_of(success: float, groups=("randommix",)) -> dict:
+    row = {"success": (success, 1.0), "trail_completion": (40.0, 2.0), "traverse_rate": (60.0, 0.5),
+           "mev": (5.0, 0.25), "ttf": (12.0, 0.5), "time_to_reach": (math.nan, math.nan)}
+    return {**{g: dict(row) for g in groups}, "overall": row}
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_tables_put_the_paper_under_ours_and_list_rows_not_trained(tmp_path):
+    ck = Path("ck")
+    results = {
+        "h1_oracle": pt.RowResult("h1_oracle", "evaluated", ck / "oracle_h1.pt", rows=aggregate_of(50.0)),
+        "h1_lego_h": pt.RowResult("h1_lego_h", "not trained", ck / "student_h1.pt",
+                                  "ck/student_h1.pt holds the H1 student (tcvit, HLM off): HLM off, the row needs HLM on"),
+        "h1_no_hlm": pt.RowResult("h1_no_hlm", "evaluated", ck / "student_h1.pt", rows=aggregate_of(25.5)),
+        "h1_vanilla": pt.RowResult("h1_vanilla", "failed", ck / "ablations/h1_vanilla.pt", "ValueError: bad"),
+        "h1_eph": pt.RowResult("h1_eph", "evaluated", ck / "ablations/h1_eph.pt", rows=aggregate_of(10.0)),
+        "h1_rmab": pt.RowResult("h1_rmab", "not trained", ck / "ablations/h1_rmab.pt"),
+    }
+    tables = [pt.TABLES["ablation"], pt.TABLES["terrains"]]
+    written = pt.write_tables(tables, results, tmp_path, "# header\n\nTrail seeds: 1, 2")
+    assert set(written) == {"ablation.md", "ablation.csv", "terrains.md", "terrains.csv", "tables.md"}
+    md = (tmp_path / "ablation.md").read_text()
+    lines = md.splitlines()
+    assert "| method | source | SR (%) ↑ | TC (%) ↑ | TR (%) ↑ | MEV (%) ↓ | TTF (s) ↑ | T2R (s) ↓ | checkpoint |" in lines
+    oracle = lines.index("| Oracle | ours | 50.00 ± 1.00 | 40.00 ± 2.00 | 60.00 ± 0.50 | 5.00 ± 0.25 | 12.00 ± 0.50 "
+                         "| n/a | `ck/oracle_h1.pt` |")
+    assert lines[oracle + 1] == ("|  | paper | 71.20 ± 0.72 | 77.73 ± 0.92 | 73.60 ± 0.81 | 7.12 ± 0.92 | 7.25 ± 0.09 "
+                                 "| 4.59 ± 0.08 |  |")
+    lego = next(ln for ln in lines if ln.startswith("| LEGO-H | ours |"))
+    assert "| not trained | — | — | — | — | — |" in lego and "not trained: `ck/student_h1.pt`; ck/student_h1.pt holds" in lego
+    assert any(ln.startswith("| w TC-ViT (no HLM) | ours | 25.50 ± 1.00 |") for ln in lines)
+    assert any(ln.startswith("| Vanilla (ConvGRU) | ours | failed |") and "ValueError: bad" in ln for ln in lines)
+    rows = read_csv(tmp_path / "ablation.csv")
+    assert [(r["method"], r["source"], r["status"]) for r in rows] == [
+        ("Oracle", "ours", "evaluated"), ("Oracle", "paper", "paper"),
+        ("LEGO-H", "ours", "not trained"), ("LEGO-H", "paper", "paper"),
+        ("w TC-ViT (no HLM)", "ours", "evaluated"), ("w TC-ViT (no HLM)", "paper", "paper"),
+        ("Vanilla (ConvGRU)", "ours", "failed"), ("Vanilla (ConvGRU)", "paper", "paper")]
+    assert float(rows[0]["success_mean"]) == 50.0 and float(rows[0]["mev_std"]) == 0.25
+    assert rows[0]["checkpoint"] == "ck/oracle_h1.pt" and rows[0]["time_to_reach_mean"] == "nan"
+    assert (rows[1]["success_mean"], rows[1]["success_std"]) == ("71.2", "0.72")
+    assert rows[2]["success_mean"] == "" and rows[2]["checkpoint"] == "ck/student_h1.pt" and "HLM off" in rows[2]["note"]
+    terrains = read_csv(tmp_path / "terrains.csv")
+    eph = [r for r in terrains if r["method"] == "EP-H" and r["source"] == "ours"]
+    assert [(r["trails"], r["status"]) for r in eph] == [("randommix", "evaluated")] + [
+        (c, "not evaluated") for c in ("ditch", "hurdle", "gap", "forest")]
+    assert all(r["status"] == "not trained" for r in terrains if r["method"] == "RMA-B" and r["source"] == "ours")
+    assert "| EP-H | randommix | ours | 10.00 ± 1.00 |" in (tmp_path / "terrains.md").read_text()
+    everything = (tmp_path / "tables.md").read_text()
+    assert everything.startswith("# header\n\nTrail seeds: 1, 2\n") and md in everything
+    assert "| h1_lego_h | LEGO-H (tab:ablation_h1) | not trained | `ck/student_h1.pt` |" in everything
+
+
+def test_paper_only_tables_have_no_rows_of_ours(tmp_path):
+    pt.write_tables([pt.TABLES["g1"]], None, tmp_path, "# paper")
+    lines = (tmp_path / "g1.md").read_text().splitlines()
+    assert "| G1 (LEGO-H) | paper | 63.96 ± 1.03 | 38.94 ± 0.63 | 62.21 ± 0.97 | 5.33 ± 0.68 | 7.24 ± 0.22 | 8.10 ± 0.08 |" in lines
+    assert not any("ours" in ln or "G1 oracle" in ln for ln in lines if ln.startswith("|"))
+    assert {r["source"] for r in read_csv(tmp_path / "g1.csv")} == {"paper"}
+
+
+def test_each_checkpoint_is_evaluated_once_and_a_failure_does_not_stop_the_others(tmp_path):
+    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(True))
+    fake_checkpoint(tmp_path / "oracle_h1.pt", {"robot": "h1", "kind": "oracle"})
+    calls = []
+
+    def fake_evaluate(path, settings, out):
+        calls.append((path.name, out.name))
+        if path.name == "oracle_h1.pt":
+            raise RuntimeError("diverged")
+        return aggregate_of(42.0)
+
+    keys = [r.key for name in ("ablation", "g1", "hlm_vae", "gru_ct") for r in pt.TABLES[name].rows]
+    results = pt.run_rows(keys, tmp_path, pt.Settings((1, 2)), tmp_path / "out", evaluate_fn=fake_evaluate)
+    assert calls == [("oracle_h1.pt", "oracle_h1"), ("student_h1.pt", "student_h1")]
+    assert results["h1_lego_h"].status == "evaluated" and results["h1_lego_h"].rows["overall"]["success"] == (42.0, 1.0)
+    assert results["h1_oracle"].status == "failed" and results["h1_oracle"].note == "RuntimeError: diverged"
+    assert results["h1_no_hlm"].status == "not trained" and "HLM on, the row needs HLM off" in results["h1_no_hlm"].note
+    assert results["h1_ct"].status == "not trained" and results["h1_ct"].path == tmp_path / "ablations" / "h1_ct.pt"
+    assert list(results) == list(dict.fromkeys(keys))
+
+
+# ---------------------------------------------------------------------------------------------
+# the command line
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--trail-seeds", "1", "--tables", "ablation", "nope"], "unknown table 'nope'; valid: ['ablation', "),
+    (["--trail-seeds", "1", "--tables", "g1", "g1"], "tables must be distinct, got ['g1', 'g1'] (repeated: ['g1'])"),
+    (["--trail-seeds", "3", "4", "3"], "trail seeds must be distinct, got [3, 4, 3] (repeated: [3])"),
+    (["--tables", "g1"], "--trail-seeds is required"),
+    (["--trail-seeds"], "expected at least one argument"),
+    (["--trail-seeds", "1", "--robots-per-cell", "0"], "robots_per_cell must be >= 1, got 0"),
+    (["--trail-seeds", "1", "--variants", "-2"], "variants must be >= 1, got -2"),
+    (["--trail-seeds", "1", "--protocol", "gpu"], "unknown protocol 'gpu'; valid: ['cpu', 'paper']"),
+    (["--trail-seeds", "1", "--categories", "randommix", "swamp"], "unknown categories ['swamp']"),
+    (["--trail-seeds", "1", "--levels", "0", "7"], "levels [7] out of range; valid: 0..4"),
+    (["--trail-seeds", "1", "--checkpoints", "/nonexistent/ck"], "--checkpoints '/nonexistent/ck' is not a folder"),
+])
+def test_bad_command_lines_are_refused_naming_the_bad_value(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        pt.main(argv)
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_only_paper_writes_every_table_without_evaluating(tmp_path, monkeypatch):
+    monkeypatch.setattr(pt, "run_rows", lambda *a, **k: pytest.fail("--only-paper evaluated something"))
+    assert pt.main(["--only-paper", "--out", str(tmp_path)]) == 0
+    assert {p.name for p in tmp_path.iterdir()} == {f"{n}.{ext}" for n in pt.TABLES for ext in ("md", "csv")} | {"tables.md"}
+    text = (tmp_path / "tables.md").read_text()
+    assert "Command: `python recipes/paper_tables.py --only-paper --out" in text
+    assert "| Oracle | paper | 71.20 ± 0.72 |" in text
+
+
+def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys):
+    ck = tmp_path / "ck"
+    ck.mkdir()
+    (ck / "oracle_h1.pt").symlink_to(ROOT / "checkpoints" / "oracle_h1.pt")
+    out = tmp_path / "tables"
+    argv = ["--checkpoints", str(ck), "--out", str(out), "--trail-seeds", "9101", "--robots-per-cell", "1",
+            "--variants", "1", "--categories", "randommix", "--levels", "0", "--tables", "ablation",
+            "--num-threads", "1", "--device", "cpu"]
+    assert pt.main(argv) == 0
+    assert {p.name for p in out.iterdir()} == {"ablation.md", "ablation.csv", "tables.md", "evals"}
+    assert (out / "evals" / "oracle_h1" / "table.md").is_file()
+    rows = {(r["row"], r["source"]): r for r in read_csv(out / "ablation.csv")}
+    oracle = rows[("h1_oracle", "ours")]
+    assert oracle["status"] == "evaluated" and oracle["checkpoint"] == str(ck / "oracle_h1.pt")
+    assert 0.0 <= float(oracle["success_mean"]) <= 100.0 and float(oracle["ttf_mean"]) > 0.0
+    assert float(oracle["success_std"]) == 0.0  # one trail grid, one run
+    for key in ("h1_lego_h", "h1_no_hlm", "h1_vanilla"):
+        assert rows[(key, "ours")]["status"] == "not trained" and rows[(key, "ours")]["success_mean"] == ""
+    assert rows[("h1_no_hlm", "ours")]["checkpoint"] == str(ck / "ablations" / "h1_no_hlm.pt")
+    text = (out / "tables.md").read_text()
+    assert "Trail seeds: 9101" in text and "--trail-seeds 9101" in text
+    assert f"not trained: `{ck / 'student_h1.pt'}`" in text
+    assert "| Oracle | ours | " in capsys.readouterr().out
