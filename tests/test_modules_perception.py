@@ -188,15 +188,16 @@ def test_num_waypoints_is_zero_or_one():
 
 
 def test_committed_student_checkpoint_acts_as_before():
-    """The default (M = 1) is LEGO-H's network: ``checkpoints/student_h1.pt`` loads strictly and
-    gives the actions it gave before ``num_waypoints`` existed (recorded with that code)."""
+    """The default (M = 1) is LEGO-H's network: the RandomMix student
+    (``checkpoints/student_h1_randommix.pt``) loads strictly and gives the actions it gave before
+    ``num_waypoints`` existed (recorded with that code)."""
     from pathlib import Path
 
     from torchrl.envs.utils import ExplorationType, set_exploration_type
 
     from legoh_rl.modules import LocomotionConfig, make_locomotion_actor
 
-    path = Path(__file__).resolve().parents[1] / "checkpoints" / "student_h1.pt"
+    path = Path(__file__).resolve().parents[1] / "checkpoints" / "student_h1_randommix.pt"
     ck = torch.load(path, map_location="cpu", weights_only=False)
     d = ck["meta"]["obs_layout"]["proprio"][0]
     cfg = perception_config("cpu", d, num_goals=3)

@@ -355,12 +355,12 @@ def test_route_following_of_a_standing_robot_and_of_the_committed_oracle():
 
 
 def test_route_following_can_give_the_student_the_expert_goal():
-    """--goal-source expert replaces the committed student's predicted goal by the expert one: it
+    """--goal-source expert replaces the RandomMix student's predicted goal by the expert one: it
     then keeps closer to the route by its sixth second (its own prediction, which follows P_B,
     leads it off; docs/history/results-sessions-1-12.md); the oracle has no goal to replace."""
     import route_following as rf
 
-    student = str(RECIPES.parent / "checkpoints" / "student_h1.pt")
+    student = str(RECIPES.parent / "checkpoints" / "student_h1_randommix.pt")
     own = rf.route_following(student, robots=2, seconds=6.0, variants=2)
     given = rf.route_following(student, robots=2, seconds=6.0, variants=2, goal_source="expert")
     assert np.isfinite(own["pred_yaw"]).all() and np.isfinite(given["pred_yaw"]).all()

@@ -142,7 +142,8 @@ def test_every_experiment_names_itself_and_its_recipe(path):
 # (experiment, committed checkpoint): the experiment's last stage trains with the recorded settings
 RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("oracle_g1_randommix", "checkpoints/oracle_g1.pt"),
-            ("student_h1_randommix", "checkpoints/student_h1.pt"),
+            ("student_h1_randommix", "checkpoints/student_h1_randommix.pt"),
+            ("student_h1_trails", "checkpoints/student_h1.pt"),
             ("oracle_h1_footholds", "checkpoints/oracle_h1.pt")]
 SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
             "unified": ("env", "ppo", "student", "dagger_iters", "dagger_beta0", "dagger_decay_iters", "dagger_epochs",
@@ -165,7 +166,7 @@ def test_committed_experiments_expand_to_the_recorded_settings(name, checkpoint)
 
 def test_every_committed_checkpoint_names_the_experiment_that_made_it():
     committed = sorted((ROOT / "checkpoints").glob("*.pt"))
-    assert len(committed) >= 4
+    assert len(committed) >= 5
     for path in committed:
         name = load_checkpoint(path)["meta"].get("experiment")
         assert name and (RECIPES / "config" / "experiment" / f"{name}.yaml").is_file(), path.name
