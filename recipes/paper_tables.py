@@ -45,7 +45,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from legoh_rl.envs.metrics import METRIC_NAMES
-from legoh_rl.envs.trails import ALL_CATEGORIES, CATEGORIES, NUM_LEVELS
+from legoh_rl.envs.trails import CATEGORIES, NUM_LEVELS
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 
@@ -418,29 +418,19 @@ class Settings:
     logger: str = "csv"
 
     def __post_init__(self) -> None:
-        seeds = list(self.trail_seeds)
-        if not seeds:
-            raise ValueError("trail seeds must name at least one seed")
-        dup = sorted({s for s in seeds if seeds.count(s) > 1})
-        if dup:
-            raise ValueError(f"trail seeds must be distinct, got {seeds} (repeated: {dup})")
-        for name in ("robots_per_cell", "runs", "variants"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        """Refuse a bad protocol before any evaluation, with ``evaluate.py``'s own checks (its
+        protocol and trail seeds, :class:`~legoh_rl.training.evaluation.EvalProtocol`'s cells)."""
+        keys = ("protocol", "categories", "levels", "robots_per_cell", "runs", "trail_seeds")
+        cfg = OmegaConf.create({**{k: v for k, v in self.overrides(Path("-"), Path("-")).items() if k in keys},
+                                "seed": 0})
+        evaluate_recipe.protocol_of(cfg)
+        evaluate_recipe.trail_seeds_of(cfg)
+        if int(self.variants) < 1:
+            raise ValueError(f"variants must be >= 1, got {self.variants}")
         if self.num_threads is not None and self.num_threads < 1:
             raise ValueError(f"num_threads must be >= 1, got {self.num_threads}")
-        if self.protocol not in ("cpu", "paper"):
-            raise ValueError(f"unknown protocol {self.protocol!r}; valid: ['cpu', 'paper']")
         if self.logger not in ("csv", "wandb"):
             raise ValueError(f"unknown logger {self.logger!r}; valid: ['csv', 'wandb']")
-        _check_unique("categories", self.categories)
-        bad = [c for c in self.categories if c not in ALL_CATEGORIES]
-        if bad:
-            raise ValueError(f"unknown categories {bad}; valid: {list(ALL_CATEGORIES)}")
-        _check_unique("levels", self.levels)
-        bad = [lv for lv in self.levels if not 0 <= lv < NUM_LEVELS]
-        if bad:
-            raise ValueError(f"levels {bad} out of range; valid: 0..{NUM_LEVELS - 1}")
 
     def overrides(self, checkpoint: Path, output_dir: Path) -> dict:
         """The ``evaluate.yaml`` keys for one checkpoint."""

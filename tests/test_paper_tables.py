@@ -284,10 +284,11 @@ def test_each_checkpoint_is_evaluated_once_and_a_failure_does_not_stop_the_other
 @pytest.mark.parametrize("argv, message", [
     (["--trail-seeds", "1", "--tables", "ablation", "nope"], "unknown table 'nope'; valid: ['ablation', "),
     (["--trail-seeds", "1", "--tables", "g1", "g1"], "tables must be distinct, got ['g1', 'g1'] (repeated: ['g1'])"),
-    (["--trail-seeds", "3", "4", "3"], "trail seeds must be distinct, got [3, 4, 3] (repeated: [3])"),
+    (["--trail-seeds", "3", "4", "3"], "trail_seeds must be a non-empty list of distinct seeds, got [3, 4, 3]"),
     (["--tables", "g1"], "--trail-seeds is required"),
     (["--trail-seeds"], "expected at least one argument"),
-    (["--trail-seeds", "1", "--robots-per-cell", "0"], "robots_per_cell must be >= 1, got 0"),
+    (["--trail-seeds", "1", "--robots-per-cell", "0"], "robots_per_cell and runs must be >= 1, got 0, 1"),
+    (["--trail-seeds", "1", "--levels", "0", "0"], "levels must be distinct, got [0, 0] (repeated: [0])"),
     (["--trail-seeds", "1", "--variants", "-2"], "variants must be >= 1, got -2"),
     (["--trail-seeds", "1", "--protocol", "gpu"], "unknown protocol 'gpu'; valid: ['cpu', 'paper']"),
     (["--trail-seeds", "1", "--categories", "randommix", "swamp"], "unknown categories ['swamp']"),

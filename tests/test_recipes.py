@@ -1,6 +1,7 @@
 """Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs."""
 
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -247,6 +248,19 @@ def test_plot_curves_overlays_separate_runs(tmp_path, monkeypatch):
     assert ax_im.get_legend_handles_labels()[1] == ["a", "b"]
     assert [list(line.get_ydata()) for line in ax_im.lines] == [[0.1, 0.1], [0.05, 0.05, 0.05]]
     assert [list(line.get_ydata()) for line in ax_sr.lines] == [[40.0, 40.0, 40.0]]  # run a has no values
+
+
+def test_plot_curves_marks_a_panel_the_run_did_not_log(tmp_path, monkeypatch):
+    """A panel none of whose keys the run logged (a student has no feedforward anneal) says so."""
+    import plot_curves
+
+    figs = []
+    monkeypatch.setattr(plot_curves.plt, "close", figs.append)
+    rows = [{"step": s, "reward/total": 0.1, "curriculum/gap": 1.0} for s in (10, 20)]
+    plot_curves.plot(rows, tmp_path / "trails.png", "student", panels=plot_curves.TRAIL_PANELS)
+    texts = {i: [t.get_text() for t in ax.texts] for i, ax in enumerate(figs[0].axes)}
+    assert texts[4] == ["not logged by this run"]  # train/gait_feedforward
+    assert texts[0] == [] and texts[5] == []  # curriculum and reward were drawn
 
 
 def test_metrics_file_of_a_resumed_run_drops_the_rows_after_its_checkpoint(tmp_path):
@@ -586,3 +600,20 @@ def test_demo_help_prints_usage_and_runs_nothing(capsys):
     assert out.startswith("usage: python -m legoh_rl.demo") and "short oracle PPO training" in out
     with pytest.raises(SystemExit):
         demo.main(["--bogus"])
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"categories": ("randommix", "swamp")}, "unknown categories ['swamp']; valid: ["),
+    ({"levels": (0, 5)}, "levels [5] out of range; valid: 0..4"),
+    ({"levels": (1, 1)}, "levels must be distinct, got [1, 1] (repeated: [1])"),
+    ({"categories": ("gap", "gap")}, "categories must be distinct, got ['gap', 'gap']"),
+    ({"robots_per_cell": 0}, "robots_per_cell and runs must be >= 1, got 0, 1"),
+])
+def test_eval_protocol_refuses_bad_cells_naming_them(kwargs, message):
+    """evaluate.py, paper_tables.py and the probes share these checks, before any env is built."""
+    from legoh_rl.training.evaluation import EvalProtocol
+
+    cells = {"categories": ("randommix",), "levels": (0,), **kwargs}
+    with pytest.raises(ValueError, match=re.escape(message)):
+        EvalProtocol(**cells)
+    assert EvalProtocol(categories=("hill", "gap"), levels=(0, 4)).num_worlds == 16  # hill: out of domain, valid

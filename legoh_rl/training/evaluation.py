@@ -21,6 +21,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from legoh_rl.envs.metrics import METRIC_NAMES
+from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
 
 __all__ = [
     "EvalProtocol",
@@ -73,6 +74,16 @@ class EvalProtocol:
             raise ValueError(f"robots_per_cell and runs must be >= 1, got {self.robots_per_cell}, {self.runs}")
         if not self.categories or not self.levels:
             raise ValueError("the protocol needs at least one category and one level")
+        for name, values in (("categories", list(self.categories)), ("levels", list(self.levels))):
+            repeated = sorted({v for v in values if values.count(v) > 1}, key=str)
+            if repeated:
+                raise ValueError(f"{name} must be distinct, got {values} (repeated: {repeated})")
+        unknown = [c for c in self.categories if c not in ALL_CATEGORIES]
+        if unknown:
+            raise ValueError(f"unknown categories {unknown}; valid: {list(ALL_CATEGORIES)}")
+        outside = [lv for lv in self.levels if not 0 <= int(lv) < NUM_LEVELS]
+        if outside:
+            raise ValueError(f"levels {outside} out of range; valid: 0..{NUM_LEVELS - 1}")
 
     @property
     def num_worlds(self) -> int:
