@@ -177,7 +177,8 @@ class UnifiedTrainer(Trainer):
         return {"perception": self.student.perception.state_dict(), "actor": self.student.actor.state_dict(),
                 "critic": self.critic_nets.state_dict(), "vae": self.vae.state_dict(), "optim": self.optim.state_dict(),
                 "sched": self.sched.state_dict(), "vae_optim": self.vae_optim.state_dict(),
-                "teacher": str(self.cfg.teacher), "teacher_sha256": self.teacher_sha256}
+                "teacher": str(self.cfg.teacher), "teacher_sha256": self.teacher_sha256,
+                "replay": None if self.replay is None else self.replay.state_dict()}
 
     def postfix(self, stats: dict) -> dict[str, str]:
         return {"im": f"{stats.get('loss/im_action', float('nan')):.3f}", **super().postfix(stats)}
@@ -225,6 +226,11 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
         for key in ("optim", "sched", "vae_optim"):
             getattr(p, key).load_state_dict(state[key])
         base.load_state_dict(state["env"])
+        if replay is not None and state.get("replay") is not None:
+            replay.load_state_dict(state["replay"])
+        elif replay is not None:
+            print(f"{path} holds no DAgger replay window (written before windows were checkpointed, or by a "
+                  "run without one): it starts empty")
         set_rng_state(state["rng"])
         p.iteration, p.frames, p.run_id = state["iteration"], state["frames"], state.get("run_id")
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")

@@ -79,3 +79,20 @@ def test_training_on_the_window_fits_the_teacher_and_touches_only_the_network():
     assert torch.equal(other, torch.ones(3))
     loc = a.module[0](batch(2, 3, seed=5).select("z_uni", "proprio", "delta_g0", "goal_next"))["loc"]
     assert torch.allclose(loc, torch.full_like(loc, 0.3), atol=0.05)
+
+
+def test_state_dict_round_trip_continues_the_same_window_and_samples():
+    a = actor()
+    rp = LocomotionReplay(a, 20, 4, 2, seed=3)
+    rp.extend(batch(3, 9))  # 27 steps through a 20-step window: the cursor has wrapped
+    copy = LocomotionReplay(actor(), 20, 4, 2, seed=99)
+    copy.load_state_dict(rp.state_dict())
+    assert len(copy) == 20 and (copy.buffer.storage[:20] == rp.buffer.storage[:20]).all()
+    nxt = batch(1, 5, target=0.9, seed=7)
+    rp.extend(nxt)
+    copy.extend(nxt)  # the same slots are overwritten
+    assert (copy.buffer.storage[:20] == rp.buffer.storage[:20]).all()
+    b = actor()  # same initial weights: the same samples give the same losses
+    assert copy.train(torch.optim.SGD(b.parameters(), lr=0.0)) == rp.train(torch.optim.SGD(a.parameters(), lr=0.0))
+    with pytest.raises(ValueError, match="saved window holds 20 steps, this one 10"):
+        LocomotionReplay(actor(), 10, 4, 2).load_state_dict(rp.state_dict())

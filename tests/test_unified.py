@@ -186,3 +186,23 @@ def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, t
     # the window holds the teacher's labels of the latest steps
     assert torch.equal(p.replay.buffer.storage[:25]["action_tea"].sort(0).values,
                        data["action_tea"].reshape(-1, data["action_tea"].shape[-1])[-25:].sort(0).values)
+
+
+def test_the_dagger_replay_window_is_checkpointed_and_restored(teacher, tmp_path):
+    """A resumed run samples the same aggregated DAgger data as the run that wrote the checkpoint."""
+    rp = ["dagger_replay.capacity=30", "dagger_replay.batch_size=8", "dagger_replay.steps=2"]
+    unified.train(tiny(teacher, tmp_path, "collector.total_frames=80", *rp))
+    state = load_checkpoint(tmp_path / "last.pt")
+    assert state["replay"]["capacity"] == 30
+    resumed = unified.build(tiny(teacher, tmp_path, "collector.total_frames=120", "checkpoint.resume=auto", *rp))
+    assert len(resumed.replay) == 30  # two 40-step batches through a 30-step window
+    saved = resumed.replay.state_dict()
+    assert torch.equal(saved["generator"], state["replay"]["generator"])
+    window = resumed.replay.buffer.storage[:30]
+    assert set(window.keys()) == {"z_uni", "proprio", "delta_g0", "goal_next", "action_tea"}
+    fresh = unified.build(tiny(teacher, tmp_path / "fresh", *rp))
+    fresh.replay.load_state_dict(state["replay"])
+    assert (fresh.replay.buffer.storage[:30] == window).all()
+    with pytest.raises(ValueError, match="saved window holds 30 steps, this one 20"):
+        unified.build(tiny(teacher, tmp_path, "collector.total_frames=120", "checkpoint.resume=auto",
+                           "dagger_replay.capacity=20"))

@@ -11,7 +11,8 @@ action term of :class:`~legoh_rl.objectives.DAggerLoss`.
 
 The stored perception outputs were computed by an older perception module; with a window of a
 few dozen iterations they change little, and the perception keeps its own gradient from the
-main update. The buffer is not checkpointed: a resumed run starts it empty.
+main update. The window is part of a run's checkpoint (:meth:`LocomotionReplay.state_dict`), so a
+resumed run samples the same data as one that never stopped.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ class LocomotionReplay:
         self.net = actor.module[0]
         self.keys = [*self.net.in_keys, action_key]
         self.steps = int(steps)
+        self.capacity = int(capacity)
         self.loss = DAggerLoss(w1=0.0, w2=0.0, w3=1.0)
         self.loss.set_keys(action_tea=action_key, action_uni="loc")
         self._gen = torch.Generator().manual_seed(int(seed))
@@ -60,6 +62,22 @@ class LocomotionReplay:
 
     def __len__(self) -> int:
         return len(self.buffer)
+
+    def state_dict(self) -> dict:
+        """The window's contents, write cursor and sampling stream (for a run's checkpoint)."""
+        return {"capacity": self.capacity, "buffer": self.buffer.state_dict(), "generator": self._gen.get_state()}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore what :meth:`state_dict` saved.
+
+        Raises:
+            ValueError: the saved window has another capacity than this one (names both).
+        """
+        if int(state["capacity"]) != self.capacity:
+            raise ValueError(f"LocomotionReplay: the saved window holds {state['capacity']} steps, this one "
+                             f"{self.capacity} (dagger_replay.capacity must be the one the run was trained with)")
+        self.buffer.load_state_dict(state["buffer"])
+        self._gen.set_state(state["generator"])
 
     def extend(self, data: TensorDictBase) -> None:
         """Add every step of a collected batch (any batch shape; it is flattened).
