@@ -98,7 +98,8 @@ def evaluate(cfg: DictConfig) -> dict:
         print(f"trail set {i + 1}/{len(seeds)} (seed {seed}): {protocol.num_worlds} robots x {protocol.runs} run(s)",
               flush=True)
         env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
-                                        seed=seed, num_threads=cfg.num_threads, device=device)
+                                        seed=seed, num_threads=cfg.num_threads, device=device,
+                                        physics=cfg.get("physics", "mujoco"))
         part = run_protocol(env, policy, replace(protocol, seed=seed), progress=True)
         episodes += [{**e, "run": i * protocol.runs + e["run"], "trail_seed": seed} for e in part.episodes]
         if i == 0:

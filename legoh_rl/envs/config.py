@@ -8,9 +8,10 @@ from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DomainRandConfig
 from legoh_rl.envs.sensors import DepthCameraConfig
 
-__all__ = ["HikingEnvConfig", "MODES"]
+__all__ = ["HikingEnvConfig", "MODES", "PHYSICS"]
 
 MODES = ("oracle", "student", "eval")
+PHYSICS = ("mujoco", "warp")  # env.physics: C MuJoCo threads or MuJoCo Warp
 
 
 @dataclass
@@ -46,6 +47,9 @@ class HikingEnvConfig:
         fall_height_ratio: base height above the terrain below this x target height: fall.
         timestep, decimation: physics step (s) and substeps per control step.
         num_threads: physics threads (None = all usable CPUs).
+        physics: the physics backend: ``mujoco`` (C MuJoCo in threads, ``mujoco.batch``) or
+            ``warp`` (MuJoCo Warp on ``device``; needs ``pip install 'legoh-rl[gpu]'``;
+            docs/gpu_physics.md).
         action_clip: actions are clipped to [-clip, clip] (the action spec's bounds).
         spawn_jitter_xy, spawn_jitter_yaw: random spawn offsets in training (m, rad).
         swing_height: target lift of a moving foot for the ``feet_clearance`` term, m.
@@ -98,6 +102,7 @@ class HikingEnvConfig:
     timestep: float = 0.005
     decimation: int = 4
     num_threads: int | None = None
+    physics: str = "mujoco"
     action_clip: float = 5.0
     spawn_jitter_xy: float = 0.2
     spawn_jitter_yaw: float = 0.3
@@ -141,6 +146,8 @@ class HikingEnvConfig:
         if self.gait_feedforward and not self.gait_period:
             raise ValueError(f"gait_feedforward={self.gait_feedforward!r} needs a gait clock: set gait_period > 0 "
                              f"(got gait_period={self.gait_period!r})")
+        if self.physics not in PHYSICS:
+            raise ValueError(f"unknown physics {self.physics!r}; valid: {list(PHYSICS)}")
         if not self.levels:
             raise ValueError("levels must name at least one difficulty level")
         if self.category_weights is not None:

@@ -48,6 +48,7 @@ from legoh_rl.envs.sensors import (
     world_to_yaw_frame,
 )
 from legoh_rl.envs.threads import torch_threads
+from legoh_rl.envs.warp_physics import WarpWorlds
 
 __all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
 
@@ -144,7 +145,11 @@ class HikingEnv(EnvBase):
         N = cfg.num_envs
         super().__init__(device=torch.device(cfg.device), batch_size=torch.Size([N]))
         self.built = build_model(self.robot, terrain=trails, timestep=cfg.timestep)
-        self.worlds = BatchedWorlds(self.built, N, decimation=cfg.decimation, num_threads=cfg.num_threads)
+        if cfg.physics == "warp":
+            self.worlds = WarpWorlds(self.built, N, decimation=cfg.decimation, num_threads=cfg.num_threads,
+                                     device=cfg.device)
+        else:
+            self.worlds = BatchedWorlds(self.built, N, decimation=cfg.decimation, num_threads=cfg.num_threads)
         self.dt = self.worlds.dt
         self.A = self.robot.num_actions
         self.max_steps = int(round(cfg.max_episode_s / self.dt))

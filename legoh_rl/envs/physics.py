@@ -1,6 +1,8 @@
 """N MuJoCo worlds of one model stepped together in C threads (``mujoco.batch.Batch``).
 
-:class:`BatchedWorlds` is the only place the env touches MuJoCo's state. Everything is an
+:class:`BatchedWorlds` is the only place the env touches MuJoCo's state (or
+:class:`~legoh_rl.envs.warp_physics.WarpWorlds`, the same contract on MuJoCo Warp; both derive
+from :class:`Worlds`, which holds what does not depend on the physics engine). Everything is an
 ``(N, ...)`` numpy array; no method loops over worlds in Python.
 
 * ``set_joint_targets`` writes the PD targets q* of all worlds (the position actuators' ctrl);
@@ -25,7 +27,7 @@ import numpy as np
 
 from legoh_rl.envs.robots import BuiltModel
 
-__all__ = ["BatchedWorlds", "default_num_threads"]
+__all__ = ["Worlds", "BatchedWorlds", "default_num_threads", "MAX_ABS_QVEL"]
 
 _INSTABILITY_WARNINGS = (
     int(mujoco.mjtWarning.mjWARN_BADQPOS),
@@ -44,31 +46,16 @@ def default_num_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-class BatchedWorlds:
-    """``num_worlds`` copies of a :class:`BuiltModel`, stepped in parallel.
+class Worlds:
+    """What every physics backend of the env shares: arguments, home states, PD targets, world ids.
 
-    Args:
-        built: the compiled robot + terrain model.
-        num_worlds: N, number of worlds (>= 1).
-        decimation: physics substeps per control step (>= 1).
-        num_threads: C threads stepping the worlds; ``None`` = all usable CPUs.
-
-    Live state arrays (writes go to the simulation): ``qpos`` (N, nq), ``qvel`` (N, nv),
-    ``ctrl`` (N, nu). Read-only outputs refreshed after every call: ``xpos`` (N, nbody, 3),
-    ``xquat`` (N, nbody, 4), ``sensordata`` (N, nsensordata), ``actuator_force`` (N, nu),
-    ``cam_xpos`` (N, ncam, 3), ``cam_xmat`` (N, ncam, 9).
-
-    Attributes:
-        diverged_total: worlds reset because they diverged, since construction.
+    A backend sets ``model`` (the C ``MjModel``), ``num_worlds``, ``decimation``, ``num_threads``
+    and the live ``(N, ...)`` float64 arrays ``qpos``, ``qvel``, ``ctrl``, ``xpos``, ``xquat``,
+    ``sensordata``, ``actuator_force``, ``cam_xpos``, ``cam_xmat``, and implements
+    ``_reset_to_home``, ``step``, ``per_world``, ``set_const`` and ``world_data``.
     """
 
-    def __init__(
-        self,
-        built: BuiltModel,
-        num_worlds: int,
-        decimation: int = 4,
-        num_threads: int | None = None,
-    ) -> None:
+    def _init_common(self, built: BuiltModel, num_worlds: int, decimation: int, num_threads: int | None) -> None:
         if not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
             raise ValueError(f"num_worlds must be a positive integer, got {num_worlds!r}")
         if not isinstance(decimation, (int, np.integer)) or decimation < 1:
@@ -81,38 +68,15 @@ class BatchedWorlds:
         self.num_worlds = int(num_worlds)
         self.decimation = int(decimation)
         self.num_threads = nthread
-        self.batch = mjb.Batch(self.model, self.num_worlds, nthread, persistent=True)
-        b = self.batch
-        self.qpos = b.bind("qpos")
-        self.qvel = b.bind("qvel")
-        self.ctrl = b.bind("ctrl")
-        self.xpos = b.bind("xpos")
-        self.xquat = b.bind("xquat")
-        self.sensordata = b.bind("sensordata")
-        self.actuator_force = b.bind("actuator_force")
-        self.cam_xpos = b.bind("cam_xpos")
-        self.cam_xmat = b.bind("cam_xmat")
         self.diverged_total = 0
         self.home_qpos = np.tile(built.default_qpos, (self.num_worlds, 1))
         self.home_qvel = np.zeros((self.num_worlds, self.model.nv))
-        self._warn_seen = np.zeros((self.num_worlds,), dtype=np.int64)
         self._nominal: dict[str, np.ndarray] = {}
-        self.reset()
 
-    # ------------------------------------------------------------------ state
     @property
     def dt(self) -> float:
         """Control period: timestep x decimation, s."""
         return float(self.model.opt.timestep) * self.decimation
-
-    @property
-    def time(self) -> np.ndarray:
-        """Simulation time of each world, (N,) s."""
-        return self.batch.bind("time")
-
-    def _instability_count(self) -> np.ndarray:
-        # Batch.warning is (N, mjNWARNING, 2) of mjWarningStat = (lastinfo, number).
-        return self.batch.warning[:, list(_INSTABILITY_WARNINGS), 1].sum(axis=1).astype(np.int64)
 
     def reset(
         self,
@@ -147,14 +111,8 @@ class BatchedWorlds:
         self.home_qvel[idx] = qvel
         self._reset_to_home(idx)
 
-    def _reset_to_home(self, idx: np.ndarray) -> None:
-        b = self.batch
-        b.reset(idx, stage=mujoco.mjtStage.mjSTAGE_NONE)
-        self.qpos[idx] = self.home_qpos[idx]
-        self.qvel[idx] = self.home_qvel[idx]
-        self.ctrl[idx] = self.default_targets
-        b.forward(idx, stage=mujoco.mjtStage.mjSTAGE_ACC)
-        self._warn_seen[idx] = self._instability_count()[idx]
+    def _reset_to_home(self, idx: np.ndarray) -> None:  # pragma: no cover - every backend defines it
+        raise TypeError(f"{type(self).__name__} must define _reset_to_home")
 
     @property
     def default_targets(self) -> np.ndarray:
@@ -163,7 +121,6 @@ class BatchedWorlds:
         targets[self.built.actuator_ids] = self.built.robot.default_joint_pos
         return targets
 
-    # ------------------------------------------------------------------ control
     def set_joint_targets(self, q_target: np.ndarray) -> None:
         """Set PD joint targets q* of every world, (N, A) rad in leg-joint order."""
         q_target = np.asarray(q_target)
@@ -171,6 +128,93 @@ class BatchedWorlds:
         if q_target.shape != expected:
             raise ValueError(f"joint targets must have shape {expected}, got {q_target.shape}")
         self.ctrl[:, self.built.actuator_ids] = q_target
+
+    def nominal(self, field: str) -> np.ndarray:
+        """The model's value of ``field`` before any per-world change."""
+        if field not in self._nominal:
+            self._nominal[field] = np.array(getattr(self.model, field), copy=True)
+        return self._nominal[field]
+
+    def unstable_rows(self) -> np.ndarray:
+        """(N,) bool: worlds whose state is non-finite or whose speed exceeds ``MAX_ABS_QVEL``
+        (one reduction per array in the usual case, rows only otherwise)."""
+        if np.isfinite(self.qpos.sum()) and np.abs(self.qvel).max() <= MAX_ABS_QVEL:
+            return np.zeros(self.num_worlds, dtype=bool)
+        return (~np.isfinite(self.qpos).all(axis=1) | ~np.isfinite(self.qvel).all(axis=1)
+                | (np.abs(self.qvel).max(axis=1) > MAX_ABS_QVEL))
+
+    def _ids(self, ids: np.ndarray | None) -> np.ndarray:
+        if ids is None:
+            return np.arange(self.num_worlds)
+        ids = np.asarray(ids)
+        if ids.dtype == bool:
+            if ids.shape != (self.num_worlds,):
+                raise ValueError(f"world mask must have shape ({self.num_worlds},), got {ids.shape}")
+            return np.flatnonzero(ids)
+        ids = ids.astype(np.int64).reshape(-1)
+        if ids.size and (ids.min() < 0 or ids.max() >= self.num_worlds):
+            raise ValueError(f"world ids must lie in [0, {self.num_worlds}), got {ids}")
+        return ids
+
+
+class BatchedWorlds(Worlds):
+    """``num_worlds`` copies of a :class:`BuiltModel`, stepped in parallel.
+
+    Args:
+        built: the compiled robot + terrain model.
+        num_worlds: N, number of worlds (>= 1).
+        decimation: physics substeps per control step (>= 1).
+        num_threads: C threads stepping the worlds; ``None`` = all usable CPUs.
+
+    Live state arrays (writes go to the simulation): ``qpos`` (N, nq), ``qvel`` (N, nv),
+    ``ctrl`` (N, nu). Read-only outputs refreshed after every call: ``xpos`` (N, nbody, 3),
+    ``xquat`` (N, nbody, 4), ``sensordata`` (N, nsensordata), ``actuator_force`` (N, nu),
+    ``cam_xpos`` (N, ncam, 3), ``cam_xmat`` (N, ncam, 9).
+
+    Attributes:
+        diverged_total: worlds reset because they diverged, since construction.
+    """
+
+    def __init__(
+        self,
+        built: BuiltModel,
+        num_worlds: int,
+        decimation: int = 4,
+        num_threads: int | None = None,
+    ) -> None:
+        self._init_common(built, num_worlds, decimation, num_threads)
+        self.batch = mjb.Batch(self.model, self.num_worlds, self.num_threads, persistent=True)
+        b = self.batch
+        self.qpos = b.bind("qpos")
+        self.qvel = b.bind("qvel")
+        self.ctrl = b.bind("ctrl")
+        self.xpos = b.bind("xpos")
+        self.xquat = b.bind("xquat")
+        self.sensordata = b.bind("sensordata")
+        self.actuator_force = b.bind("actuator_force")
+        self.cam_xpos = b.bind("cam_xpos")
+        self.cam_xmat = b.bind("cam_xmat")
+        self._warn_seen = np.zeros((self.num_worlds,), dtype=np.int64)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def time(self) -> np.ndarray:
+        """Simulation time of each world, (N,) s."""
+        return self.batch.bind("time")
+
+    def _instability_count(self) -> np.ndarray:
+        # Batch.warning is (N, mjNWARNING, 2) of mjWarningStat = (lastinfo, number).
+        return self.batch.warning[:, list(_INSTABILITY_WARNINGS), 1].sum(axis=1).astype(np.int64)
+
+    def _reset_to_home(self, idx: np.ndarray) -> None:
+        b = self.batch
+        b.reset(idx, stage=mujoco.mjtStage.mjSTAGE_NONE)
+        self.qpos[idx] = self.home_qpos[idx]
+        self.qvel[idx] = self.home_qvel[idx]
+        self.ctrl[idx] = self.default_targets
+        b.forward(idx, stage=mujoco.mjtStage.mjSTAGE_ACC)
+        self._warn_seen[idx] = self._instability_count()[idx]
 
     def step(self) -> np.ndarray:
         """Advance every world ``decimation`` substeps; reset and count the ones that diverged.
@@ -187,13 +231,7 @@ class BatchedWorlds:
         warn = self._instability_count()
         bad = failed | (warn > self._warn_seen)
         self._warn_seen = warn
-        # one reduction per array in the usual case (all finite and bounded), rows only otherwise
-        if not (np.isfinite(self.qpos.sum()) and np.abs(self.qvel).max() <= MAX_ABS_QVEL):
-            bad |= (
-                ~np.isfinite(self.qpos).all(axis=1)
-                | ~np.isfinite(self.qvel).all(axis=1)
-                | (np.abs(self.qvel).max(axis=1) > MAX_ABS_QVEL)
-            )
+        bad |= self.unstable_rows()
         if bad.any():
             idx = np.flatnonzero(bad)
             self.diverged_total += int(idx.size)
@@ -206,31 +244,15 @@ class BatchedWorlds:
 
         The nominal (shared) value is remembered the first time, see :meth:`nominal`.
         """
-        if field not in self._nominal:
-            self._nominal[field] = np.array(getattr(self.model, field), copy=True)
+        self.nominal(field)
         return self.batch.expand(field)
-
-    def nominal(self, field: str) -> np.ndarray:
-        """The model's value of ``field`` before any per-world change."""
-        if field not in self._nominal:
-            self._nominal[field] = np.array(getattr(self.model, field), copy=True)
-        return self._nominal[field]
 
     def set_const(self, ids: np.ndarray | None = None) -> None:
         """Recompute derived constants of worlds ``ids`` (all if None) after changing masses
         or inertias (mj_setConst)."""
         self.batch.set_const(None if ids is None else self._ids(ids).astype(np.int32))
 
-    # ------------------------------------------------------------------ helpers
-    def _ids(self, ids: np.ndarray | None) -> np.ndarray:
-        if ids is None:
-            return np.arange(self.num_worlds)
-        ids = np.asarray(ids)
-        if ids.dtype == bool:
-            if ids.shape != (self.num_worlds,):
-                raise ValueError(f"world mask must have shape ({self.num_worlds},), got {ids.shape}")
-            return np.flatnonzero(ids)
-        ids = ids.astype(np.int64).reshape(-1)
-        if ids.size and (ids.min() < 0 or ids.max() >= self.num_worlds):
-            raise ValueError(f"world ids must lie in [0, {self.num_worlds}), got {ids}")
-        return ids
+    def world_data(self, world: int, data: mujoco.MjData) -> None:
+        """Copy world ``world``'s state (and what the last step computed) into ``data`` (for a
+        renderer)."""
+        self.batch.get_data(int(world), data)

@@ -111,7 +111,7 @@ class WorldRenderer:
     """RGB frames of worlds of a :class:`~legoh_rl.envs.physics.BatchedWorlds`, one GL context.
 
     Args:
-        worlds: the batched worlds (a persistent ``mujoco.batch.Batch``, as BatchedWorlds makes).
+        worlds: the batched worlds (any :class:`~legoh_rl.envs.physics.Worlds` backend).
         track_body: the body a :class:`TrackingCamera` follows by default (the torso).
         height: frame height, pixels (>= 1).
         width: frame width, pixels (>= 1).
@@ -184,7 +184,7 @@ class WorldRenderer:
         elif out.shape != shape or out.dtype != np.uint8:
             raise ValueError(f"out must be a uint8 array of shape {shape}, got {out.dtype} {out.shape}")
         for i, w in enumerate(ids):
-            self.worlds.batch.get_data(int(w), self._data)
+            self.worlds.world_data(int(w), self._data)
             self._renderer.update_scene(self._data, camera=cam)
             self._renderer.render(out=out[i])
         return out

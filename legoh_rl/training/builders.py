@@ -77,6 +77,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         levels=value("levels", lambda v: tuple(int(x) for x in v)),
         category_weights=value("category_weights", lambda v: tuple(float(w) for w in v)),
         pit_depths=value("pit_depths", lambda v: tuple(float(d) for d in v)),
+        physics=value("physics", str),
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
         **{name: value(name, int) for name in ("variants", "seed", "feet_edge_from_level")},
         **{name: value(name, float) for name in ("episode_length_s", "cmd_speed", "gait_period", "gait_stance",

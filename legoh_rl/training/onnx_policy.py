@@ -184,7 +184,7 @@ class OnnxModule(TensorDictModuleBase):
 
 
 def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2, seed: int = 0, num_threads=None,
-                     trails=None, threads: int = 1):
+                     trails=None, threads: int = 1, physics: str = "mujoco"):
     """``(env, policy, kind)`` for exported graphs, as :func:`~legoh_rl.training.policies.load_policy`
     gives for a ``.pt`` checkpoint: the same eval env (robot, gait clock and, for the student,
     its transforms and state primers) rebuilt from the graphs' meta block.
@@ -203,7 +203,8 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
     if "oracle" in files:
         module = OnnxModule(files["oracle"], threads)
         meta = module.info["meta"]
-        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, **gait_kwargs(meta))
+        env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, physics=physics,
+                       **gait_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), files["oracle"])
         return env, module, "oracle (onnx)"
     perception = OnnxModule(files["perception"], threads)
@@ -211,7 +212,7 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
     meta = perception.info["meta"]
     if locomotion.info["meta"] != meta:
         raise DeployError(f"{files['perception']} and {files['locomotion']} come from different checkpoints")
-    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails,
+    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails, physics=physics,
                     **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]},
                files["perception"])

@@ -1,0 +1,239 @@
+"""N worlds of one model stepped by MuJoCo Warp (``env.physics=warp``), on a GPU or Warp's CPU.
+
+:class:`WarpWorlds` keeps :class:`~legoh_rl.envs.physics.BatchedWorlds`' contract, so the env,
+its body-state reader, domain randomisation and renderer run on it unchanged: the same live
+``(N, ...)`` float64 numpy arrays (``qpos``, ``qvel``, ``ctrl``, ``xpos``, ``xquat``,
+``sensordata``, ``actuator_force``, ``cam_xpos``, ``cam_xmat``), the same ``reset``, ``step``,
+``per_world``, ``set_const`` and divergence handling. The simulation itself lives in Warp arrays on
+``device``; each :meth:`WarpWorlds.step` uploads the state and targets the env may have written
+(``qpos``, ``qvel``, ``ctrl``: a few hundred bytes per world) and the model fields domain
+randomisation changed, runs ``decimation`` ``mujoco_warp.step`` calls and the kinematics of the
+new state, and downloads the outputs. That host round trip is what remains between this backend
+and a device-resident env (docs/gpu_physics.md).
+
+How it differs from C MuJoCo (docs/history/warp-feasibility.md): float32 state; heightfield
+contacts capped at a few per geom pair, so a landing foot's forces differ while a quiet stance
+matches; no instability warnings, so a world is reset as diverged when its state is non-finite or
+too fast, or when it overflowed Warp's contact or constraint buffers (``Data.overflow``).
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import torch
+
+from legoh_rl.envs.physics import Worlds
+from legoh_rl.envs.robots import BuiltModel
+
+__all__ = ["WarpWorlds", "PER_WORLD_FIELDS", "import_mujoco_warp", "warp_device"]
+
+INSTALL_HINT = "pip install 'legoh-rl[gpu]' (mujoco-warp==4.0.0 and warp-lang==1.19.0)"
+
+#: model fields domain randomisation writes per world (legoh_rl/envs/randomization.py)
+PER_WORLD_FIELDS = ("geom_friction", "body_mass", "body_ipos", "actuator_gainprm", "actuator_biasprm")
+#: what ``mujoco_warp.set_const`` derives from masses and inertias: per world as well
+_DERIVED_FIELDS = ("body_subtreemass", "body_invweight0", "dof_invweight0", "actuator_acc0")
+#: data arrays the env reads after a step (names shared with MjData and mujoco_warp.Data)
+_OUTPUTS = ("qpos", "qvel", "xpos", "xquat", "sensordata", "actuator_force", "cam_xpos", "cam_xmat")
+
+
+def import_mujoco_warp():
+    """``(warp, mujoco_warp)``, initialised quietly.
+
+    Raises:
+        ImportError: either package is missing (says what to install).
+    """
+    try:
+        import warp
+
+        warp.config.log_level = warp.LOG_WARNING  # no banner or per-module compile lines
+        import mujoco_warp
+    except ImportError as err:
+        raise ImportError(f"env.physics=warp needs MuJoCo Warp ({err.name} is not installed): {INSTALL_HINT}") from err
+    warp.init()
+    return warp, mujoco_warp
+
+
+def warp_device(device: str | torch.device) -> str:
+    """Warp's name for a torch device: ``cpu`` -> ``cpu``, ``cuda`` / ``cuda:i`` -> ``cuda:i``.
+
+    Raises:
+        ValueError: another device type (names it).
+    """
+    dev = torch.device(device)
+    if dev.type == "cpu":
+        return "cpu"
+    if dev.type == "cuda":
+        return f"cuda:{dev.index or 0}"
+    raise ValueError(f"env.physics=warp runs on cpu or cuda devices, got {device!r}")
+
+
+class WarpWorlds(Worlds):
+    """``num_worlds`` copies of a :class:`BuiltModel` stepped together by MuJoCo Warp.
+
+    Args:
+        built: the compiled robot + terrain model.
+        num_worlds: N, number of worlds (>= 1).
+        decimation: physics substeps per control step (>= 1).
+        num_threads: CPU threads of the env's other work (depth); Warp's own parallelism is
+            its device's. ``None`` = all usable CPUs.
+        device: where the simulation runs (``cpu``, ``cuda``, ``cuda:i``).
+        nconmax: contacts kept per world (more overflow: that world is reset and counted).
+        njmax: constraint rows per world (four per pyramidal contact, plus joint limits).
+
+    Arrays as :class:`~legoh_rl.envs.physics.BatchedWorlds` (float64 host copies of the float32
+    simulation): writes to ``qpos``, ``qvel`` and ``ctrl`` reach the simulation at the next
+    :meth:`step`; the outputs are refreshed after every :meth:`step` and reset.
+
+    Attributes:
+        diverged_total: worlds reset because they diverged, since construction.
+        overflow_total: of those, worlds reset because they overflowed Warp's buffers.
+
+    Raises:
+        ImportError: MuJoCo Warp is not installed (says what to install).
+    """
+
+    def __init__(
+        self,
+        built: BuiltModel,
+        num_worlds: int,
+        decimation: int = 4,
+        num_threads: int | None = None,
+        device: str | torch.device = "cpu",
+        nconmax: int = 64,
+        njmax: int = 320,
+    ) -> None:
+        self._init_common(built, num_worlds, decimation, num_threads)
+        self.batch = None  # no C batch: the env's depth camera casts obstacle rays with its own caster
+        for name, value in (("nconmax", nconmax), ("njmax", njmax)):
+            if int(value) < 1:
+                raise ValueError(f"{name} must be >= 1, got {value!r}")
+        self.wp, self.mjw = import_mujoco_warp()
+        self.device = warp_device(device)
+        self.torch_device = torch.device("cpu" if self.device == "cpu" else self.device)
+        N, mjm = self.num_worlds, self.model
+        with self.wp.ScopedDevice(self.device):
+            self.m = self.mjw.put_model(mjm, batch_sizes={f: N for f in (*PER_WORLD_FIELDS, *_DERIVED_FIELDS)})
+            self.d = self.mjw.put_data(mjm, mujoco.MjData(mjm), nworld=N, nconmax=int(nconmax), njmax=int(njmax))
+        to_torch = self.wp.to_torch
+        self._view = {name: to_torch(getattr(self.d, name)) for name in (*_OUTPUTS, "ctrl", "time", "overflow")}
+        self._field_view = {f: to_torch(getattr(self.m, f)) for f in PER_WORLD_FIELDS}
+        one = mujoco.MjData(mjm)
+        for name in (*_OUTPUTS, "ctrl"):  # host copies with the C backend's shapes
+            setattr(self, name, np.zeros((N, *getattr(one, name).shape)))
+        self._time = np.zeros(N)
+        self._per_world: dict[str, np.ndarray] = {}
+        self._dirty: set[str] = set()
+        self._const_due = False
+        self.overflow_total = 0
+        self.reset()
+
+    # ------------------------------------------------------------------ transfers
+    def _upload_state(self) -> None:
+        """Host ``qpos``, ``qvel``, ``ctrl`` and the changed model fields -> the simulation."""
+        v = self._view
+        for name in ("qpos", "qvel", "ctrl"):
+            v[name].copy_(torch.from_numpy(getattr(self, name)))
+        for field in self._dirty:
+            self._field_view[field].copy_(torch.from_numpy(self._per_world[field]).reshape(self._field_view[field].shape))
+        self._dirty.clear()
+        if self._const_due:
+            self.mjw.set_const(self.m, self.d)
+            self._const_due = False
+
+    def _download(self, rows: np.ndarray | None = None) -> None:
+        """Simulation outputs -> the host arrays, of worlds ``rows`` (all if None)."""
+        sel = slice(None) if rows is None else torch.as_tensor(rows, device=self.torch_device)
+        for name in _OUTPUTS:
+            out = getattr(self, name)
+            src = self._view[name][sel].reshape((-1, *out.shape[1:])).to(torch.float64).cpu().numpy()
+            if rows is None:
+                out[:] = src
+            else:
+                out[rows] = src
+        t = self._view["time"][sel].to(torch.float64).cpu().numpy()
+        if rows is None:
+            self._time[:] = t
+        else:
+            self._time[rows] = t
+
+    # ------------------------------------------------------------------ state
+    @property
+    def time(self) -> np.ndarray:
+        """Simulation time of each world, (N,) s."""
+        return self._time
+
+    def _reset_to_home(self, idx: np.ndarray) -> None:
+        wp, mjw = self.wp, self.mjw
+        mask = np.zeros(self.num_worlds, dtype=bool)
+        mask[idx] = True
+        with wp.ScopedDevice(self.device):
+            mjw.reset_data(self.m, self.d, reset=wp.array(mask, dtype=bool))
+            self._view["overflow"][torch.as_tensor(mask, device=self.torch_device)] = 0
+            self.qpos[idx] = self.home_qpos[idx]
+            self.qvel[idx] = self.home_qvel[idx]
+            self.ctrl[idx] = self.default_targets
+            self._upload_state()
+            # positions, velocities, actuation and contact forces of the reset worlds (the others'
+            # state is unchanged; only the reset rows are read back)
+            mjw.forward(self.m, self.d)
+        self._download(idx)
+
+    def step(self) -> np.ndarray:
+        """Advance every world ``decimation`` substeps; reset and count the ones that diverged.
+
+        Returns:
+            diverged: (N,) bool, worlds whose state went non-finite or too fast, or which
+            overflowed Warp's buffers, during this step; they were reset to their home state.
+        """
+        mjw = self.mjw
+        with self.wp.ScopedDevice(self.device):
+            self._upload_state()
+            for _ in range(self.decimation):
+                mjw.step(self.m, self.d)
+            # step leaves positions at the pre-step state: the new state's, as the C backend's
+            # mjSTAGE_VEL gives (contact sensors and actuator forces stay those of the last substep)
+            mjw.kinematics(self.m, self.d)
+            mjw.camlight(self.m, self.d)
+        self._download()
+        overflow = self._view["overflow"].cpu().numpy() != 0
+        bad = overflow | self.unstable_rows()
+        if bad.any():
+            idx = np.flatnonzero(bad)
+            self.diverged_total += int(idx.size)
+            self.overflow_total += int(overflow.sum())
+            self._reset_to_home(idx)
+        return bad
+
+    # ------------------------------------------------------------------ model parameters
+    def per_world(self, field: str) -> np.ndarray:
+        """Per-world copy of a model field, (N, ...), for domain randomisation; what is written
+        into it reaches the simulation at the next :meth:`step`.
+
+        Raises:
+            ValueError: a field Warp was not given per world (names the ones it was).
+        """
+        if field not in PER_WORLD_FIELDS:
+            raise ValueError(f"WarpWorlds keeps {list(PER_WORLD_FIELDS)} per world, not {field!r}")
+        nominal = self.nominal(field)
+        if field not in self._per_world:
+            self._per_world[field] = np.tile(nominal, (self.num_worlds, *([1] * nominal.ndim)))
+        self._dirty.add(field)  # the caller writes into it next
+        return self._per_world[field]
+
+    def set_const(self, ids: np.ndarray | None = None) -> None:
+        """Recompute derived constants after changing masses or inertias (``mujoco_warp.set_const``,
+        at the next step, over every world: unchanged worlds get the same values back)."""
+        if ids is not None:
+            self._ids(ids)  # validated like the C backend's
+        self._const_due = True
+
+    def world_data(self, world: int, data: mujoco.MjData) -> None:
+        """World ``world``'s state in ``data``, with its positions computed (for a renderer)."""
+        w = int(self._ids(np.array([world]))[0])
+        data.qpos[:] = self.qpos[w]
+        data.qvel[:] = self.qvel[w]
+        data.ctrl[:] = self.ctrl[w]
+        mujoco.mj_kinematics(self.model, data)
+        mujoco.mj_camlight(self.model, data)
