@@ -36,7 +36,7 @@ def warp_physics_rate(worlds: WarpWorlds, seconds: float) -> float:
         worlds.step()
         fallen = worlds.qpos[:, 2] < worlds.home_qpos[:, 2] - 0.4
         if fallen.any():
-            worlds._reset_to_home(np.flatnonzero(fallen))
+            worlds.reset(fallen, qpos=worlds.home_qpos[fallen])
         steps += 1
     return steps * n / (time.perf_counter() - start)
 

@@ -20,6 +20,7 @@ from :class:`Worlds`, which holds what does not depend on the physics engine). E
 from __future__ import annotations
 
 import os
+from abc import ABC, abstractmethod
 
 import mujoco
 import mujoco.batch as mjb
@@ -46,13 +47,12 @@ def default_num_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-class Worlds:
+class Worlds(ABC):
     """What every physics backend of the env shares: arguments, home states, PD targets, world ids.
 
-    A backend sets ``model`` (the C ``MjModel``), ``num_worlds``, ``decimation``, ``num_threads``
-    and the live ``(N, ...)`` float64 arrays ``qpos``, ``qvel``, ``ctrl``, ``xpos``, ``xquat``,
-    ``sensordata``, ``actuator_force``, ``cam_xpos``, ``cam_xmat``, and implements
-    ``_reset_to_home``, ``step``, ``per_world``, ``set_const`` and ``world_data``.
+    A backend calls :meth:`_init_common`, sets the live ``(N, ...)`` float64 arrays ``qpos``,
+    ``qvel``, ``ctrl``, ``xpos``, ``xquat``, ``sensordata``, ``actuator_force``, ``cam_xpos``,
+    ``cam_xmat``, and implements the abstract methods below.
     """
 
     def _init_common(self, built: BuiltModel, num_worlds: int, decimation: int, num_threads: int | None) -> None:
@@ -111,8 +111,27 @@ class Worlds:
         self.home_qvel[idx] = qvel
         self._reset_to_home(idx)
 
-    def _reset_to_home(self, idx: np.ndarray) -> None:  # pragma: no cover - every backend defines it
-        raise TypeError(f"{type(self).__name__} must define _reset_to_home")
+    @abstractmethod
+    def _reset_to_home(self, idx: np.ndarray) -> None:
+        """Put worlds ``idx`` (n,) back into their home states, PD targets at the default pose,
+        their outputs computed."""
+
+    @abstractmethod
+    def step(self) -> np.ndarray:
+        """Advance every world ``decimation`` substeps; returns (N,) bool, the worlds that
+        diverged and were reset to their home states (counted in ``diverged_total``)."""
+
+    @abstractmethod
+    def per_world(self, field: str) -> np.ndarray:
+        """A per-world ``(N, ...)`` copy of a model field that domain randomisation writes into."""
+
+    @abstractmethod
+    def set_const(self, ids: np.ndarray | None = None) -> None:
+        """Recompute the constants derived from masses and inertias (worlds ``ids``, all if None)."""
+
+    @abstractmethod
+    def world_data(self, world: int, data: mujoco.MjData) -> None:
+        """Copy world ``world``'s state, with its positions computed, into ``data`` (for a renderer)."""
 
     @property
     def default_targets(self) -> np.ndarray:
