@@ -6,10 +6,15 @@
 
 For each mode and N, in one run: the full HikingEnv's steps/s on each backend (``env_rate`` of
 ``env_throughput.py``: random actions N(0, 0.5), so worlds fall and reset as in early training),
-the Warp backend's physics-only steps/s (``WarpWorlds.step`` alone, the same worlds), and the
-share of the Warp env's time spent in its host transfers (the upload of state and targets, the
-download of outputs), which is what a device-resident env would remove. The C backend runs on
-``--threads`` CPU threads.
+the Warp backend's physics-only steps/s (``WarpWorlds.step`` alone, the same worlds), launching
+each kernel eagerly and replaying the step's captured CUDA graph (``cuda_graph``, the default on
+a GPU), the share of the Warp env's time inside ``WarpWorlds.step`` ("in physics": the rest is
+the env's host work), the share spent in its host transfers (the upload of state and targets,
+the download of outputs), and the largest qpos difference between the graph's and the eager
+step from one state ("graph diff"). A student's depth is cast by Warp on the device (``depth_camera.source``
+auto on ``physics=warp``); the "warp+host depth" column is the same env with the host march
+instead (``source=host``), the comparison that decides which depth path is faster. The C
+backend runs on ``--threads`` CPU threads.
 """
 
 from __future__ import annotations
@@ -22,6 +27,7 @@ import torch
 from env_throughput import env_rate
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.sensors import DepthCameraConfig
 from legoh_rl.envs.warp_physics import WarpWorlds
 
 
@@ -66,6 +72,38 @@ def transfer_share(env: HikingEnv, seconds: float) -> float:
             delattr(worlds, name)
 
 
+def graph_parity(worlds: WarpWorlds) -> float:
+    """Largest |qpos| difference between one control step replayed from the captured CUDA graph
+    and the same step launched eagerly, from the same state (nan when the worlds have no graph)."""
+    if worlds._graph is None:
+        return float("nan")
+    state = [worlds.qpos.copy(), worlds.qvel.copy(), worlds.ctrl.copy()]
+    out = []
+    for graph in (False, True):
+        worlds.qpos[:], worlds.qvel[:], worlds.ctrl[:] = state
+        with worlds.wp.ScopedDevice(worlds.device):
+            worlds._upload_state()
+            if graph:
+                worlds.wp.capture_launch(worlds._graph)
+            else:
+                worlds._launch_control_step()
+        worlds._download()
+        out.append(worlds.qpos.copy())
+    return float(np.abs(out[0] - out[1]).max())
+
+
+def warp_rates(worlds: WarpWorlds, seconds: float) -> tuple[float, float]:
+    """Physics-only world-steps/s of ``worlds`` launching eagerly, then replaying its CUDA graph
+    (nan when it has none)."""
+    graph = worlds._graph
+    worlds._graph, worlds.cuda_graph = None, False
+    eager = warp_physics_rate(worlds, seconds)
+    if graph is None:
+        return eager, float("nan")
+    worlds._graph, worlds.cuda_graph = graph, True
+    return eager, warp_physics_rate(worlds, seconds)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--device", default="cuda")
@@ -78,21 +116,30 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads or torch.get_num_threads())
     print(f"device={args.device} robot={args.robot} threads={torch.get_num_threads()}")
-    print(f"{'mode':8} {'N':>6} {'mujoco env/s':>13} {'warp env/s':>11} {'warp physics/s':>15} "
-          f"{'warp/mujoco':>12} {'transfers':>10}")
+    print(f"{'mode':8} {'N':>6} {'mujoco env/s':>13} {'warp env/s':>11} {'warp+host depth/s':>18} "
+          f"{'physics eager/s':>16} {'physics graph/s':>16} {'warp/mujoco':>12} {'in physics':>11} "
+          f"{'transfers':>10} {'graph diff':>11}", flush=True)
     for mode in args.modes:
         for n in args.n:
-            rates = {}
-            for physics in ("mujoco", "warp"):
+            rates, shares = {}, {}
+            # the student's depth: the host march on C MuJoCo; Warp's rays on the device (the warp
+            # default) and, beside it, the host march on Warp's state (depth_camera.source=host)
+            runs = [("mujoco", "host"), ("warp", "warp")] + ([("warp", "host")] if mode == "student" else [])
+            for physics, source in runs:
                 env = HikingEnv(HikingEnvConfig(robot=args.robot, num_envs=n, mode=mode, physics=physics,
                                                 num_threads=args.threads,
+                                                depth_camera=DepthCameraConfig(source=source),
                                                 device=args.device if physics == "warp" else "cpu"))
-                rates[physics], _ = env_rate(env, args.seconds, warmup=args.warmup)
-                if physics == "warp":
+                rates[physics, source], shares[physics, source] = env_rate(env, args.seconds, warmup=args.warmup)
+                if (physics, source) == ("warp", "warp"):
                     share = transfer_share(env, min(args.seconds, 3.0))
-                    physics_only = warp_physics_rate(env.worlds, args.seconds)
-            print(f"{mode:8} {n:6d} {rates['mujoco']:13.0f} {rates['warp']:11.0f} {physics_only:15.0f} "
-                  f"{rates['warp'] / rates['mujoco']:12.2f} {share:10.2f}", flush=True)
+                    diff = graph_parity(env.worlds)
+                    eager, graph = warp_rates(env.worlds, args.seconds)
+                del env
+            host_depth = f"{rates['warp', 'host']:18.0f}" if ("warp", "host") in rates else f"{'-':>18}"
+            print(f"{mode:8} {n:6d} {rates['mujoco', 'host']:13.0f} {rates['warp', 'warp']:11.0f} {host_depth} "
+                  f"{eager:16.0f} {graph:16.0f} {rates['warp', 'warp'] / rates['mujoco', 'host']:12.2f} "
+                  f"{shares['warp', 'warp']:11.2f} {share:10.2f} {diff:11.2e}", flush=True)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,9 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
     python recipes/unified.py teacher=outputs/oracle_h1/last.pt
     python recipes/unified.py teacher=... hlm.enabled=false          # ablation "w TC-ViT"
     python recipes/unified.py teacher=... student.perception=eph     # baseline EP-H
+    python recipes/unified.py experiment=... checkpoint.branch=runs/x/last.pt env.seed=1 hlm.enabled=false
+        # a new run from another's state (weights, optimisers, curriculum, replay window, counters)
+        # with its own random streams: ablations and seeds that share a first stage
     python recipes/unified.py teacher=... device=cuda collector.workers=2   # GPU networks, 2 collecting processes
 """
 
@@ -94,6 +97,9 @@ def validate(cfg: DictConfig) -> None:
     if not int(capacity) >= 0:
         raise ValueError(f"dagger_replay.capacity must be >= 0 (0: off), got {capacity!r}")
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    branch = cfg.checkpoint.get("branch")
+    if branch is not None and not Path(branch).is_file():
+        raise FileNotFoundError(f"checkpoint.branch: no checkpoint at {branch}")
     check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
@@ -213,28 +219,60 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
                        sched=sched, vae_optim=vae_optim, meta=meta, teacher_sha256=file_digest(cfg.teacher),
                        device=device)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    branch = cfg.checkpoint.get("branch")
     if path is not None:
         state = load_checkpoint(path)
-        require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
-        check_meta(state["meta"], meta, path)
-        check_teacher(state, cfg, p.teacher_sha256, path)
-        hint = "student.perception, student.preset and the teacher must be the ones it was trained with"
-        load_weights(student.perception, state["perception"], path, "perception weights", hint)
-        load_weights(student.actor, state["actor"], path, "locomotion weights", hint)
-        load_weights(critic_nets, state["critic"], path, "critic weights", hint)
-        load_weights(vae, state["vae"], path, "masked-VAE weights", hint)
-        for key in ("optim", "sched", "vae_optim"):
-            getattr(p, key).load_state_dict(state[key])
-        base.load_state_dict(state["env"])
-        if replay is not None and state.get("replay") is not None:
-            replay.load_state_dict(state["replay"])
-        elif replay is not None:
-            print(f"{path} holds no DAgger replay window (written before windows were checkpointed, or by a "
-                  "run without one): it starts empty")
-        set_rng_state(state["rng"])
-        p.iteration, p.frames, p.run_id = state["iteration"], state["frames"], state.get("run_id")
+        restore(p, state, path, exact=True)
+        if "branched_from" in state["meta"]:
+            p.meta["branched_from"] = state["meta"]["branched_from"]
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
+    elif branch is not None:
+        state = load_checkpoint(branch)
+        restore(p, state, branch, exact=False)
+        p.meta["branched_from"] = {"checkpoint": str(branch), "sha256": file_digest(branch),
+                                   "iteration": int(state["iteration"]), "frames": int(state["frames"]),
+                                   "experiment": state["meta"].get("experiment")}
+        print(f"branched from {branch}: iteration {state['iteration']}, {state['frames']} frames; "
+              f"random streams from env.seed={cfg.env.seed}")
     return p
+
+
+def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
+    """Load a run's ``last.pt`` into the freshly built trainer ``p``.
+
+    Args:
+        state: the checkpoint (:func:`~legoh_rl.training.checkpoint.load_checkpoint`).
+        path: its file, for messages.
+        exact: resume (``checkpoint.resume``): every random stream continues where the checkpoint
+            left it (torch, numpy, the env's, the replay window's sampling, the run's logger id).
+            False for a branch (``checkpoint.branch``): networks, optimisers, VAE, curriculum,
+            counters and the replay window's contents carry over, while every random stream
+            keeps the one this run seeded from ``env.seed`` and the logs start a new run.
+
+    Raises:
+        CheckpointError: the checkpoint lacks training state, or was made for another robot,
+            observation layout, perception or teacher (names which).
+    """
+    require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
+    check_meta(state["meta"], {k: v for k, v in p.meta.items() if k != "branched_from"}, path)
+    check_teacher(state, p.cfg, p.teacher_sha256, path)
+    hint = "student.perception, student.preset and the teacher must be the ones it was trained with"
+    load_weights(p.student.perception, state["perception"], path, "perception weights", hint)
+    load_weights(p.student.actor, state["actor"], path, "locomotion weights", hint)
+    load_weights(p.critic_nets, state["critic"], path, "critic weights", hint)
+    load_weights(p.vae, state["vae"], path, "masked-VAE weights", hint)
+    for key in ("optim", "sched", "vae_optim"):
+        getattr(p, key).load_state_dict(state[key])
+    p.env.load_state_dict(state["env"], streams=exact)
+    if p.replay is not None and state.get("replay") is not None:
+        p.replay.load_state_dict(state["replay"], stream=exact)
+    elif p.replay is not None:
+        print(f"{path} holds no DAgger replay window (written before windows were checkpointed, or by a "
+              "run without one): it starts empty")
+    if exact:
+        set_rng_state(state["rng"])
+        p.run_id = state.get("run_id")
+    p.iteration, p.frames = state["iteration"], state["frames"]
 
 
 def beta_at(iteration: int, cfg: DictConfig) -> float:

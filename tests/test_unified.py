@@ -206,3 +206,51 @@ def test_the_dagger_replay_window_is_checkpointed_and_restored(teacher, tmp_path
     with pytest.raises(ValueError, match="saved window holds 30 steps, this one 20"):
         unified.build(tiny(teacher, tmp_path, "collector.total_frames=120", "checkpoint.resume=auto",
                            "dagger_replay.capacity=20"))
+
+
+def test_a_branch_starts_from_another_runs_state_with_its_own_random_streams(teacher, tmp_path):
+    """checkpoint.branch: weights, optimisers, curriculum, replay window and counters carried over;
+    torch, numpy, env and window-sampling streams from this run's env.seed; a new logger run."""
+    rp = ["dagger_replay.capacity=30", "dagger_replay.batch_size=8", "dagger_replay.steps=2"]
+    src = tmp_path / "src"
+    unified.train(tiny(teacher, src, "collector.total_frames=80", *rp))
+    state = load_checkpoint(src / "last.pt")
+    branch = [f"checkpoint.branch={src / 'last.pt'}", "env.seed=7", "hlm.enabled=false", *rp]
+    p = unified.build(tiny(teacher, tmp_path / "b", "collector.total_frames=120", *branch))
+    assert (p.iteration, p.frames, p.run_id) == (2, 80, None)
+    for mine, saved in ((p.student.perception, state["perception"]), (p.student.actor, state["actor"]),
+                        (p.critic_nets, state["critic"]), (p.vae, state["vae"])):
+        for k, v in saved.items():
+            assert torch.equal(mine.state_dict()[k], v), k
+    assert p.optim.state_dict()["state"][0]["step"] == state["optim"]["state"][0]["step"]
+    assert p.env.curriculum.state_dict().keys() == state["env"]["curriculum"].keys()
+    assert p.env.global_steps == state["env"]["global_steps"]
+    assert p.env.rng.bit_generator.state != state["env"]["rng"]  # env.seed 7's stream, not the source's
+    fresh = unified.build(tiny(teacher, tmp_path / "fresh", *rp))
+    fresh.replay.load_state_dict(state["replay"])
+    assert len(p.replay) == 30 and (p.replay.buffer.storage[:30] == fresh.replay.buffer.storage[:30]).all()
+    assert not torch.equal(p.replay._gen.get_state(), state["replay"]["generator"])
+    assert not torch.equal(torch.get_rng_state(), state["rng"]["torch"])
+    info = p.meta["branched_from"]
+    assert info["checkpoint"] == str(src / "last.pt") and (info["iteration"], info["frames"]) == (2, 80)
+    assert info["sha256"] == unified.file_digest(src / "last.pt")
+    # trained on, the branch writes its own checkpoint, which records where it came from and resumes exactly
+    out = unified.train(tiny(teacher, tmp_path / "b", "collector.total_frames=120", *branch))
+    assert out["iteration"] == 3 and out["frames"] == 120
+    mine = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert mine["meta"]["branched_from"] == info and mine["config"]["hlm"]["enabled"] is False
+    resumed = unified.build(tiny(teacher, tmp_path / "b", "collector.total_frames=160", "checkpoint.resume=auto",
+                                 *branch))
+    assert resumed.frames == 120 and resumed.meta["branched_from"] == info
+    assert torch.equal(resumed.replay._gen.get_state(), mine["replay"]["generator"])
+    assert load_checkpoint(src / "last.pt")["frames"] == 80  # the source is only read
+
+
+def test_a_branch_from_a_missing_or_foreign_checkpoint_is_refused(teacher, tmp_path):
+    with pytest.raises(FileNotFoundError, match="checkpoint.branch: no checkpoint at .*nowhere.pt"):
+        unified.build(tiny(teacher, tmp_path, f"checkpoint.branch={tmp_path / 'nowhere.pt'}"))
+    src = tmp_path / "src"
+    unified.train(tiny(teacher, src, "collector.total_frames=40"))
+    with pytest.raises(Exception, match="perception"):
+        unified.build(tiny(teacher, tmp_path / "b", f"checkpoint.branch={src / 'last.pt'}",
+                           "student.perception=vanilla"))

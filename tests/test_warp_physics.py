@@ -22,6 +22,7 @@ from torchrl.envs import check_env_specs
 from legoh_rl.envs.config import HikingEnvConfig
 from legoh_rl.envs.hiking import HikingEnv
 from legoh_rl.envs.randomization import DomainRandConfig
+from legoh_rl.envs.sensors import DepthCameraConfig
 from legoh_rl.envs.warp_physics import PER_WORLD_FIELDS, WarpWorlds, import_mujoco_warp, warp_device
 from legoh_rl.training.checkpoint import load_checkpoint
 
@@ -30,6 +31,7 @@ sys.path.insert(0, str(RECIPES))
 
 import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
+import unified  # noqa: E402
 
 N = 4
 OFF = DomainRandConfig.off()
@@ -134,13 +136,59 @@ def test_same_actions_give_the_same_rewards_and_terminations(pair):
         assert torch.equal(td_c["done"], td_w["done"])
 
 
-def test_depth_of_the_same_scene():
+def test_depth_cast_on_the_device_equals_mujocos_exact_rays():
+    """physics=warp casts depth with mujoco_warp.rays on the simulation's device (depth_camera.source
+    auto): the image of the same state is C MuJoCo's exact mj_ray depth (render_exact) to float32
+    rounding of the camera pose (rays agree to ~2e-5 m, i.e. ~5e-6 of the 3.8 m depth range)."""
     c, w = make("mujoco", mode="student"), make("warp", mode="student")
+    assert w.depth_on_device and isinstance(w.depth, torch.Tensor) and w.depth.device == w.worlds.torch_device
+    same_start(c, w)
+    w._render_depth(np.ones(N, dtype=bool))
+    cam = c.built.camera_id
+    exact = c.camera.render_exact(c.worlds.batch, c.worlds.cam_xpos[:, cam], c.worlds.cam_xmat[:, cam].reshape(-1, 3, 3),
+                                  np.arange(N))
+    diff = np.abs(w.depth.cpu().numpy() - exact)
+    assert (diff < 1e-4).mean() > 0.999 and np.median(diff) < 1e-5, (diff.max(), (diff > 1e-4).sum())
+    assert 0.1 < float(w.depth.mean()) < 0.99  # terrain in view, not an empty image
+    # the step's observation is the device buffer's copy, without a trip through numpy
+    td = w.reset()
+    assert torch.equal(td["depth"], w.depth) and td["depth"].data_ptr() != w.depth.data_ptr()
+
+
+def test_host_depth_on_warp_physics_matches_the_c_backends():
+    """depth_camera.source=host keeps the host march on physics=warp: the same image as on C MuJoCo."""
+    c = make("mujoco", mode="student")
+    w = make("warp", mode="student", depth_camera=DepthCameraConfig(source="host"))
+    assert not w.depth_on_device and isinstance(w.depth, np.ndarray)
     same_start(c, w)
     c._render_depth(np.ones(N, dtype=bool))
     w._render_depth(np.ones(N, dtype=bool))
     diff = np.abs(w.depth - c.depth)
     assert (diff < 1e-3).mean() > 0.99 and diff.max() < 0.05  # a pixel on an edge may flip
+    with pytest.raises(ValueError, match="source='warp' casts the simulation's own rays: it needs physics='warp'"):
+        HikingEnvConfig(physics="mujoco", depth_camera=DepthCameraConfig(source="warp"))
+    with pytest.raises(ValueError, match="depth source must be one of"):
+        DepthCameraConfig(source="gpu")
+
+
+def test_device_depth_renders_only_the_ticking_worlds_and_its_noise_resumes():
+    """A partial reset refreshes the reset worlds' images alone; noise and dropout come from a seeded
+    device generator whose state the env's state_dict carries."""
+    cam = DepthCameraConfig(noise_std=0.05, dropout=0.1)
+    w = make("warp", mode="student", depth_camera=cam)
+    td = w.rand_step(w.reset())
+    before = w.depth.clone()
+    w.worlds.qpos[1, 0] += 0.5  # moved: a fresh frame of world 1 differs from its last one
+    w.worlds.reset(np.array([1]), qpos=w.worlds.qpos[[1]])
+    w._reset(td.empty().set("_reset", torch.tensor([False, True, False, False]).unsqueeze(-1)))
+    keep = [0, 2, 3]
+    assert torch.equal(w.depth[keep], before[keep]) and not torch.equal(w.depth[1], before[1])
+    assert float((w.depth == 0.0).float().mean()) == pytest.approx(0.1, abs=0.03)  # dropout holes
+    state = w.state_dict()
+    first = w.camera.render()
+    w.load_state_dict(state)
+    assert torch.equal(w.camera.render(), first)  # the noise stream resumes exactly
+    assert w.camera.generator.initial_seed() == 3  # the env's seed
 
 
 def test_randomised_parameters_reach_the_simulation():
@@ -217,7 +265,103 @@ def test_oracle_recipe_trains_and_evaluate_runs_on_warp(tmp_path):
         "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}", "video=false",
         "logger.backend=csv"]))
     assert len(out["episodes"]) == 2
+    # a student distilled on Warp: its depth cast on the simulation's device, through the
+    # student transforms (depth history, perception hold) into TC-ViT
+    unified.train(cfg_of("unified", env + [f"teacher={tmp_path / 'ck' / 'last.pt'}", "collector.steps_per_env=10",
+                                           "collector.total_frames=40", "dagger_iters=1", "hlm.warmup_iters=1",
+                                           "ppo.num_epochs=1", f"checkpoint.dir={tmp_path / 'st'}"]))
+    student = load_checkpoint(tmp_path / "st" / "last.pt")
+    assert student["config"]["env"]["physics"] == "warp" and student["frames"] == 40
     with pytest.raises(ValueError, match="unknown physics 'gpu'"):
         evaluate_recipe.evaluate(cfg_of("evaluate", ["checkpoint=zero", "physics=gpu", "categories=[randommix]",
                                                      "levels=[0]", "robots_per_cell=1", "variants=1", "video=false",
                                                      f"output_dir={tmp_path / 'bad'}", "logger.backend=csv"]))
+
+
+def _new_loads(monkeypatch):
+    """Names of Warp modules that load a new variant from now on (compile or read the cache)."""
+    context = sys.modules["warp"]._src.context
+    loads, original = [], context.Module.load
+
+    def load(self, device, block_dim=None, *args, **kwargs):
+        before = len(self.execs)
+        out = original(self, device, block_dim, *args, **kwargs)
+        if len(self.execs) != before:
+            loads.append(self.name)
+        return out
+
+    monkeypatch.setattr(context.Module, "load", load)
+    return loads
+
+
+def test_precompile_loads_every_module_before_the_first_step(pair, monkeypatch):
+    """WarpWorlds compiles its step's, resets' and set_const's modules in its constructor (Warp's
+    launches recorded, not run); the first steps and a reset then load nothing new, and recording
+    leaves the simulation's state and Warp's launch functions as they were."""
+    _, w = pair
+    worlds = WarpWorlds(w.built, 2, compile_workers=2)
+    loads = _new_loads(monkeypatch)
+    worlds.step()
+    worlds.reset(np.array([1]), qpos=worlds.home_qpos[[1]])
+    worlds.step()
+    assert loads == []
+    wp = worlds.wp
+    launch, capture_while = wp.launch, wp.capture_while
+    qpos = worlds._view["qpos"].clone()
+    names = worlds.precompile([worlds._launch_control_step])
+    assert len(names) > 20 and "mujoco_warp._src.forward" in names and any("ccd" in n or "collision" in n for n in names)
+    assert torch.equal(worlds._view["qpos"], qpos)  # nothing ran
+    assert (wp.launch, wp.capture_while, wp._src.context.launch) == (launch, capture_while, launch)
+    with pytest.warns(UserWarning, match="recording the launches failed .*RuntimeError: boom"):
+        assert worlds.precompile([lambda: (_ for _ in ()).throw(RuntimeError("boom"))]) == []
+    assert wp.launch is launch
+    off = WarpWorlds(w.built, 1, compile_workers=0)
+    assert off.precompile([off._launch_control_step]) == []
+    with pytest.raises(ValueError, match="compile_workers must be >= 0, got -1"):
+        WarpWorlds(w.built, 1, compile_workers=-1)
+
+
+def test_cuda_graph_captures_on_the_second_step_and_replays_after(pair, monkeypatch):
+    """The control flow of cuda_graph (Warp's CPU device has no graphs, so capture and replay are
+    stand-ins here): step 1 launches eagerly, step 2 captures then replays, later steps replay
+    only; a failed capture warns once and the worlds launch eagerly from then on."""
+    _, w = pair
+    with pytest.raises(ValueError, match="cuda_graph=True needs a CUDA device"):
+        WarpWorlds(w.built, 1, cuda_graph=True, device="cpu")
+    worlds = WarpWorlds(w.built, 2, compile_workers=0)
+    assert worlds.cuda_graph is False and worlds._graph is None
+    calls = []
+    monkeypatch.setattr(worlds, "_launch_control_step", lambda: calls.append("launch"))
+
+    class Capture:
+        def __init__(self, device):
+            calls.append(f"capture on {device}")
+
+        def __enter__(self):
+            self.graph = "graph"
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+    monkeypatch.setattr(worlds.wp, "ScopedCapture", Capture)
+    monkeypatch.setattr(worlds.wp, "capture_launch", lambda graph: calls.append(f"replay {graph}"))
+    worlds.cuda_graph = True
+    for _ in range(3):
+        worlds._advance()
+    assert calls == ["launch", "capture on cpu", "launch", "replay graph", "replay graph"]
+
+    class Failing(Capture):
+        def __enter__(self):
+            raise RuntimeError("no graphs here")
+
+    fresh = WarpWorlds(w.built, 2, compile_workers=0)
+    calls.clear()
+    monkeypatch.setattr(fresh, "_launch_control_step", lambda: calls.append("launch"))
+    monkeypatch.setattr(fresh.wp, "ScopedCapture", Failing)
+    fresh.cuda_graph = True
+    fresh._advance()
+    with pytest.warns(UserWarning, match="CUDA graph capture failed .*no graphs here"):
+        fresh._advance()
+    fresh._advance()
+    assert calls == ["launch", "capture on cpu", "launch", "launch"] and fresh.cuda_graph is False

@@ -148,6 +148,9 @@ class HikingEnvConfig:
                              f"(got gait_period={self.gait_period!r})")
         if self.physics not in PHYSICS:
             raise ValueError(f"unknown physics {self.physics!r}; valid: {list(PHYSICS)}")
+        if self.depth_camera.source == "warp" and self.physics != "warp":
+            raise ValueError(f"depth_camera.source='warp' casts the simulation's own rays: it needs physics='warp', "
+                             f"got physics={self.physics!r}")
         if not self.levels:
             raise ValueError("levels must name at least one difficulty level")
         if self.category_weights is not None:

@@ -48,6 +48,7 @@ from legoh_rl.envs.sensors import (
     world_to_yaw_frame,
 )
 from legoh_rl.envs.threads import torch_threads
+from legoh_rl.envs.warp_depth import WarpDepthCamera
 from legoh_rl.envs.warp_physics import WarpWorlds
 
 __all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
@@ -160,7 +161,10 @@ class HikingEnv(EnvBase):
         if "feet_in_pit" in self.weights and getattr(trails, "pit_at", None) is None:
             raise ValueError(f"reward term feet_in_pit needs trails with pit_at(xy); {type(trails).__name__} has none")
         self.camera = None
-        if cfg.depth_enabled:  # obstacles are static and the same in every world: one caster
+        if cfg.depth_enabled and self.depth_on_device:  # the simulation's exact rays, on its device
+            self.camera = WarpDepthCamera(self.worlds, self.built.camera_id, cfg.depth_camera,
+                                          self.robot.camera_fovy_deg, seed=cfg.seed)
+        elif cfg.depth_enabled:  # obstacles are static and the same in every world: one caster
             caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
             self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg, obstacle_caster=caster)
         self.scandot_xy = scandot_offsets()
@@ -211,7 +215,11 @@ class HikingEnv(EnvBase):
         self.depth = None
         if self.camera is not None:
             c = self.cfg.depth_camera
-            self.depth = np.ones((N, 1, c.height, c.width), dtype=np.float32)
+            if self.depth_on_device:  # the images stay where the simulation casts them
+                self.depth = torch.ones((N, 1, c.height, c.width), dtype=torch.float32,
+                                        device=self.worlds.torch_device)
+            else:
+                self.depth = np.ones((N, 1, c.height, c.width), dtype=np.float32)
         self.tick = np.ones(N, dtype=bool)
         self._no_worlds = np.zeros(N, dtype=bool)  # read-only all-False mask
         self._no_worlds.flags.writeable = False
@@ -561,8 +569,23 @@ class HikingEnv(EnvBase):
             return None
         return (self.episode_step * self.dt / self.cfg.gait_period) % 1.0
 
+    @property
+    def depth_on_device(self) -> bool:
+        """Whether depth is cast by MuJoCo Warp on the simulation's device and kept there as a
+        torch tensor (``depth_camera.source`` ``warp``, or ``auto`` on ``physics=warp``)."""
+        source = self.cfg.depth_camera.source
+        return source == "warp" or (source == "auto" and self.cfg.physics == "warp")
+
     def _render_depth(self, which: np.ndarray) -> None:
         if self.camera is None or not which.any():
+            return
+        if self.depth_on_device:  # Warp casts every world's rays at once; keep the ticking worlds' rows
+            images = self.camera.render()
+            if which.all():
+                self.depth.copy_(images)
+            else:
+                rows = torch.as_tensor(np.flatnonzero(which), device=self.depth.device)
+                self.depth[rows] = images[rows]
             return
         ids = np.flatnonzero(which)
         cam = self.built.camera_id
@@ -613,7 +636,7 @@ class HikingEnv(EnvBase):
             "perception_tick": self.tick[sel, None],
         }
         if self.depth is not None:
-            obs["depth"] = self.depth[sel]
+            obs["depth"] = self.depth[sel] if isinstance(self.depth, np.ndarray) else self.depth[_rows(sel, self.depth)]
         return obs
 
     @staticmethod
@@ -639,8 +662,9 @@ class HikingEnv(EnvBase):
         def rows(columns: list, dtype: type) -> tuple[torch.Tensor, ...]:  # K x (N,) -> K x (N, 1)
             return torch.from_numpy(np.array(columns, dtype=dtype)).unsqueeze(-1).unbind(0)
 
+        on_device = {k: v.clone() for k, v in obs.items() if isinstance(v, torch.Tensor)}  # depth cast by Warp
         out: dict = {k: torch.from_numpy(np.array(v, dtype=bool if k == "perception_tick" else np.float32))
-                     for k, v in obs.items()}
+                     for k, v in obs.items() if k not in on_device}
         names = [] if reward_terms is None else list(reward_terms)
         floats = rows([episode[k] for k in METRIC_NAMES] + [reward_terms[k] for k in names]
                       + ([] if reward is None else [reward]), np.float32)
@@ -654,7 +678,10 @@ class HikingEnv(EnvBase):
             out["reward"] = floats[-1]
         out["done"], out["terminated"], out["truncated"] = bools[2:]
         td = TensorDict._new_unsafe(out, batch_size=self.batch_size, device=_CPU)
-        return td if self.device == _CPU else td.to(self.device)
+        td = td if self.device == _CPU else td.to(self.device)
+        for key, value in on_device.items():
+            td.set(key, value.to(self.device))
+        return td
 
     # ------------------------------------------------------------------ evaluation protocol
     def assign_tiles(self, levels: np.ndarray, categories: np.ndarray) -> None:
@@ -774,16 +801,32 @@ class HikingEnv(EnvBase):
         }
         if self.slice_states is not None:
             state["workers"] = [dict(s) for s in self.slice_states]
+        if isinstance(self.camera, WarpDepthCamera):  # its noise stream lives on the device
+            state["depth_rng"] = self.camera.generator.get_state()
         return state
 
-    def load_state_dict(self, state: dict) -> None:
-        """Restore :meth:`state_dict` (its ``"workers"`` into :attr:`slice_states`, ``None`` without)."""
+    def load_state_dict(self, state: dict, streams: bool = True) -> None:
+        """Restore :meth:`state_dict` (its ``"workers"`` into :attr:`slice_states`, ``None`` without).
+
+        Args:
+            streams: also the random streams (this env's and the workers'); False keeps the
+                env's own (seeded from its config) and leaves :attr:`slice_states` ``None``: a
+                run branched from another's curriculum and counters with fresh randomness.
+        """
         self.curriculum.load_state_dict(state["curriculum"])
-        self.rng.bit_generator.state = state["rng"]
+        if streams:
+            self.rng.bit_generator.state = state["rng"]
+            if isinstance(self.camera, WarpDepthCamera) and "depth_rng" in state:
+                self.camera.generator.set_state(state["depth_rng"])
         self.global_steps = int(state["global_steps"])
         self.diverged_total = int(state["diverged_total"])
         self.bad_action_total = int(state.get("bad_action_total", 0))  # absent in older checkpoints
-        self.slice_states = state.get("workers")
+        self.slice_states = state.get("workers") if streams else None
+
+
+def _rows(sel: slice | np.ndarray, like: torch.Tensor) -> slice | torch.Tensor:
+    """A numpy row selection as an index of the torch tensor ``like`` (on its device)."""
+    return sel if isinstance(sel, slice) else torch.as_tensor(sel, device=like.device)
 
 
 def _default_trails(cfg: HikingEnvConfig) -> TrailSource:

@@ -41,6 +41,7 @@ __all__ = [
 
 
 MARCH_BACKENDS = ("auto", "native", "torch")
+DEPTH_SOURCES = ("auto", "host", "warp")
 #: a surface hit this far (m) above the bare ground lies on an obstacle (resolved exactly)
 OBSTACLE_MARGIN = 0.02
 
@@ -64,6 +65,10 @@ class DepthCameraConfig:
             stops at its first sample below the ground), ``"torch"`` (the vectorised reference,
             :func:`march_ground`), or ``"auto"`` (native when it builds, else torch with a warning).
             Both give the same depth to float32 rounding.
+        source: who casts the rays: ``"host"`` (this module's :class:`DepthCamera`: the
+            height-map march and the obstacle caster, on the CPU), ``"warp"`` (MuJoCo Warp's
+            exact rays on the simulation's device, :mod:`legoh_rl.envs.warp_depth`; needs
+            ``env.physics=warp``), or ``"auto"`` (``warp`` on ``env.physics=warp``, else ``host``).
     """
 
     height: int = 64
@@ -75,10 +80,13 @@ class DepthCameraConfig:
     march_samples: int = 12
     march_refine: int = 3
     backend: str = "auto"
+    source: str = "auto"
 
     def __post_init__(self) -> None:
         if self.backend not in MARCH_BACKENDS:
             raise ValueError(f"depth backend must be one of {MARCH_BACKENDS}, got {self.backend!r}")
+        if self.source not in DEPTH_SOURCES:
+            raise ValueError(f"depth source must be one of {DEPTH_SOURCES}, got {self.source!r}")
         if self.height < 1 or self.width < 1:
             raise ValueError(f"depth resolution must be positive, got {self.height}x{self.width}")
         if self.march_samples < 2:

@@ -19,6 +19,9 @@ too fast, or when it overflowed Warp's contact or constraint buffers (``Data.ove
 
 from __future__ import annotations
 
+import os
+import warnings
+
 import mujoco
 import numpy as np
 import torch
@@ -81,6 +84,14 @@ class WarpWorlds(Worlds):
         device: where the simulation runs (``cpu``, ``cuda``, ``cuda:i``).
         nconmax: contacts kept per world (more overflow: that world is reset and counted).
         njmax: constraint rows per world (four per pyramidal contact, plus joint limits).
+        compile_workers: threads that compile the step's Warp modules before the first step
+            (:meth:`precompile`); ``None``: one per CPU; 0: none (each module compiles at its
+            first launch, one after another).
+        cuda_graph: replay one captured CUDA graph of a control step's kernels (``decimation`` x
+            ``mujoco_warp.step``, kinematics, camera poses) instead of launching each kernel
+            from Python. ``None``: on for a CUDA device, off on the CPU (where Warp has no
+            graphs). The first step launches eagerly (Warp loads its modules then), the second
+            captures; a capture that fails warns once and the worlds go on launching eagerly.
 
     Arrays as :class:`~legoh_rl.envs.physics.BatchedWorlds` (float64 host copies of the float32
     simulation): writes to ``qpos``, ``qvel`` and ``ctrl`` reach the simulation at the next
@@ -103,6 +114,8 @@ class WarpWorlds(Worlds):
         device: str | torch.device = "cpu",
         nconmax: int = 64,
         njmax: int = 320,
+        compile_workers: int | None = None,
+        cuda_graph: bool | None = None,
     ) -> None:
         self._init_common(built, num_worlds, decimation, num_threads)
         self.batch = None  # no C batch: the env's depth camera casts obstacle rays with its own caster
@@ -127,6 +140,18 @@ class WarpWorlds(Worlds):
         self._dirty: set[str] = set()
         self._const_due = False
         self.overflow_total = 0
+        if cuda_graph and self.device == "cpu":
+            raise ValueError("cuda_graph=True needs a CUDA device; Warp's CPU device has no graphs")
+        self.cuda_graph = self.device != "cpu" if cuda_graph is None else bool(cuda_graph)
+        self._graph = None  # the captured control step, once captured
+        self._loaded = False  # an eager control step has run: every module of the step is loaded
+        self.compile_workers = (os.cpu_count() or 1) if compile_workers is None else int(compile_workers)
+        if self.compile_workers < 0:
+            raise ValueError(f"compile_workers must be >= 0, got {compile_workers!r}")
+        with self.wp.ScopedDevice(self.device):
+            no_worlds = self.wp.zeros(N, dtype=bool)  # reset_data's kernels for a world mask, as resets call it
+        self.precompile([self._launch_control_step, lambda: self.mjw.reset_data(self.m, self.d, reset=no_worlds),
+                         lambda: self.mjw.forward(self.m, self.d), lambda: self.mjw.set_const(self.m, self.d)])
         self.reset()
 
     # ------------------------------------------------------------------ transfers
@@ -158,6 +183,73 @@ class WarpWorlds(Worlds):
         else:
             self._time[rows] = t
 
+    # ------------------------------------------------------------------ compilation
+    def precompile(self, calls: list) -> list[str]:
+        """Compile, ``compile_workers`` at a time, the Warp modules that ``calls`` launch.
+
+        Warp compiles a module at its first launch, so a first step compiles MuJoCo Warp's
+        modules one after another; the collision kernels MuJoCo Warp builds for this model's geom
+        pairs take tens of seconds each on a GPU (docs/gpu_physics.md, "First compile"). Here each
+        call runs once with Warp's ``launch`` recording the kernels instead of launching them
+        (nothing runs on the device, so the state is untouched), then ``warp.force_load``
+        compiles the recorded modules in parallel into Warp's kernel cache.
+
+        Args:
+            calls: functions of no argument that launch Warp kernels on :attr:`device`.
+
+        Returns:
+            the names of the modules loaded (empty with ``compile_workers=0``, or when the
+            recording failed: it warns, and the modules compile at their first launch).
+        """
+        if self.compile_workers == 0:
+            return []
+        wp = self.wp
+        context = wp._src.context
+        wanted: dict[tuple[int, int], object] = {}
+
+        def launch(kernel, dim, inputs=(), outputs=(), adj_inputs=(), adj_outputs=(), device=None, stream=None,
+                   adjoint=False, record_tape=True, record_cmd=False, max_blocks=0, block_dim=None):
+            dev = stream.device if stream is not None else wp.get_device(device)
+            block = context._resolve_launch_block_dim(dev, block_dim)
+            if kernel.is_generic:  # the overload a launch would add for these argument types
+                kernel = kernel._add_normalized_overload(kernel.infer_argument_types([*inputs, *outputs]))
+            wanted[id(kernel.module), block] = kernel.module
+
+        # with no kernel running, a device-side loop condition never changes: each body once,
+        # and both branches of a device-side if
+        def capture_while(condition, while_body, stream=None, **kwargs):
+            while_body(**kwargs)
+
+        def capture_if(condition, on_true=None, on_false=None, stream=None, **kwargs):
+            for branch in (on_true, on_false):
+                if callable(branch):
+                    branch(**kwargs)
+
+        stand_ins = {"launch": launch, "capture_while": capture_while, "capture_if": capture_if}
+        originals = {name: getattr(context, name) for name in stand_ins}
+        try:
+            for name, fn in stand_ins.items():
+                setattr(context, name, fn)
+                setattr(wp, name, fn)
+            with wp.ScopedDevice(self.device):
+                for call in calls:
+                    call()
+        except Exception as err:  # noqa: BLE001 - an optimisation only: the first launches compile instead
+            warnings.warn(f"WarpWorlds.precompile: recording the launches failed ({type(err).__name__}: {err}); "
+                          "modules compile at their first launch", stacklevel=2)
+            return []
+        finally:
+            for name, fn in originals.items():
+                setattr(context, name, fn)
+                setattr(wp, name, fn)
+        by_block: dict[int, list] = {}
+        for (_, block), module in wanted.items():
+            by_block.setdefault(block, []).append(module)
+        for block, modules in by_block.items():
+            wp.force_load(device=self.device, modules=modules, block_dim=block,
+                          max_workers=min(self.compile_workers, len(modules)))
+        return sorted({m.name for m in wanted.values()})
+
     # ------------------------------------------------------------------ state
     @property
     def time(self) -> np.ndarray:
@@ -187,15 +279,9 @@ class WarpWorlds(Worlds):
             diverged: (N,) bool, worlds whose state went non-finite or too fast, or which
             overflowed Warp's buffers, during this step; they were reset to their home state.
         """
-        mjw = self.mjw
         with self.wp.ScopedDevice(self.device):
             self._upload_state()
-            for _ in range(self.decimation):
-                mjw.step(self.m, self.d)
-            # step leaves positions at the pre-step state: the new state's, as the C backend's
-            # mjSTAGE_VEL gives (contact sensors and actuator forces stay those of the last substep)
-            mjw.kinematics(self.m, self.d)
-            mjw.camlight(self.m, self.d)
+            self._advance()
         self._download()
         overflow = self._view["overflow"].cpu().numpy() != 0
         bad = overflow | self.unstable_rows()
@@ -205,6 +291,35 @@ class WarpWorlds(Worlds):
             self.overflow_total += int(overflow.sum())
             self._reset_to_home(idx)
         return bad
+
+    def _launch_control_step(self) -> None:
+        """The kernels of one control step, launched (or recorded, under a capture)."""
+        mjw = self.mjw
+        for _ in range(self.decimation):
+            mjw.step(self.m, self.d)
+        # step leaves positions at the pre-step state: the new state's, as the C backend's
+        # mjSTAGE_VEL gives (contact sensors and actuator forces stay those of the last substep)
+        mjw.kinematics(self.m, self.d)
+        mjw.camlight(self.m, self.d)
+
+    def _advance(self) -> None:
+        """One control step on the device: the captured graph when there is one, else eager
+        launches (capturing the graph once the modules are loaded, when ``cuda_graph``)."""
+        wp = self.wp
+        if self.cuda_graph and self._graph is None and self._loaded:
+            try:  # a capture records the launches without running them
+                with wp.ScopedCapture(device=self.device) as capture:
+                    self._launch_control_step()
+                self._graph = capture.graph
+            except Exception as err:  # noqa: BLE001 - any capture failure: keep stepping eagerly
+                warnings.warn(f"WarpWorlds: CUDA graph capture failed ({type(err).__name__}: {err}); "
+                              "launching the step's kernels eagerly", stacklevel=3)
+                self.cuda_graph = False
+        if self._graph is not None:
+            wp.capture_launch(self._graph)
+        else:
+            self._launch_control_step()
+            self._loaded = True
 
     # ------------------------------------------------------------------ model parameters
     def per_world(self, field: str) -> np.ndarray:

@@ -67,8 +67,9 @@ class LocomotionReplay:
         """The window's contents, write cursor and sampling stream (for a run's checkpoint)."""
         return {"capacity": self.capacity, "buffer": self.buffer.state_dict(), "generator": self._gen.get_state()}
 
-    def load_state_dict(self, state: dict) -> None:
-        """Restore what :meth:`state_dict` saved.
+    def load_state_dict(self, state: dict, stream: bool = True) -> None:
+        """Restore what :meth:`state_dict` saved (``stream=False``: the contents and cursor, while
+        sampling keeps this window's own seeded stream).
 
         Raises:
             ValueError: the saved window has another capacity than this one (names both).
@@ -77,7 +78,8 @@ class LocomotionReplay:
             raise ValueError(f"LocomotionReplay: the saved window holds {state['capacity']} steps, this one "
                              f"{self.capacity} (dagger_replay.capacity must be the one the run was trained with)")
         self.buffer.load_state_dict(state["buffer"])
-        self._gen.set_state(state["generator"])
+        if stream:
+            self._gen.set_state(state["generator"])
 
     def extend(self, data: TensorDictBase) -> None:
         """Add every step of a collected batch (any batch shape; it is flattened).
