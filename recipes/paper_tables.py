@@ -14,17 +14,22 @@ H1, and EP-H vs RMA-B per trail category) is written under ``--out`` as ``<table
 method of a table is a row of ours (``mean ± std`` of the six metrics) with the paper's row under
 it.
 
-Each method is a checkpoint under ``--checkpoints`` (:data:`ROWS`: ``oracle_h1.pt``,
-``student_h1.pt``, ``student_g1.pt``, ``ablations/<robot>_<row>.pt``). A student's file is checked
-against the row before it is used (robot, perception, HLM on or off, vanilla VAE; see
-:func:`checkpoint_info` and :func:`mismatch`): ``student_h1.pt`` is the LEGO-H row when it was
-trained with HLM and the "w TC-ViT" (no HLM) row when it was not. A row with no matching file
+Each method is one or more checkpoints under ``--checkpoints`` (:data:`ROWS`: ``oracle_h1.pt``,
+``student_h1.pt``, ``student_g1.pt``, ``ablations/<robot>_<row>.pt``; the LEGO-H and "w TC-ViT"
+rows also take training seeds, ``ablations/h1_lego_h_seed<k>.pt`` and
+``ablations/h1_no_hlm_seed<k>.pt``). A student's file is checked against the row before it is
+used (robot, perception, HLM on or off, vanilla VAE; see :func:`checkpoint_info` and
+:func:`mismatch`): ``student_h1.pt`` is a LEGO-H seed when it was trained with HLM and a "w TC-ViT"
+seed when it was not. A row with several matching files is reported as the mean ± std over them
+(:func:`across_seeds`: each seed's mean over the trail grids, then over seeds), so a difference
+between rows can be read against the spread between training seeds. A row with no matching file
 is listed as *not trained* with the path that would hold it.
 
 Every checkpoint is evaluated once, by ``recipes/evaluate.py``'s ``evaluate`` (its artefacts
 under ``<out>/evals/<checkpoint>/``), on the same protocol: the categories x levels cells with
 ``--robots-per-cell`` robots each on ``--variants`` trail variants, repeated on the trail grid of
-each of ``--trail-seeds``; mean ± std is over the trail grids (and runs), as in ``evaluate.py``.
+each of ``--trail-seeds``; for one checkpoint mean ± std is over the trail grids (and runs), as in
+``evaluate.py``.
 The paper's protocol (512 robots, 5 runs) is larger; the comparison is of the same metrics, not
 of the same sample.
 """
@@ -41,6 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import evaluate as evaluate_recipe
+import numpy as np
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
@@ -80,8 +86,9 @@ class RowSpec:
             ``student.perception``); None for an oracle.
         hlm: whether the student was trained with HLM (``hlm.enabled``); None: either.
         vanilla_vae: whether its HLM prior is the vanilla VAE (``hlm.vanilla_vae``); None: either.
-        paths: candidate files relative to the checkpoints folder; the first one that exists and
-            matches holds the row, and the first one names where the row would go.
+        paths: candidate files relative to the checkpoints folder, globs allowed
+            (``ablations/h1_no_hlm_seed*.pt``); every existing file that matches is one training
+            seed of the row, and the first candidate names where the row would go.
     """
 
     key: str
@@ -105,8 +112,10 @@ def _student(key: str, perception: str, hlm: bool | None = None, vanilla_vae: bo
 #: the RMA baselines used HLM, so those rows accept either; EP-H and EP-H + HLM differ by it.
 ROWS: dict[str, RowSpec] = {spec.key: spec for spec in (
     RowSpec("h1_oracle", "h1", "oracle", ("oracle_h1.pt",)),
-    _student("h1_lego_h", "tcvit", hlm=True, vanilla_vae=False, paths=("student_h1.pt",)),
-    _student("h1_no_hlm", "tcvit", hlm=False, paths=("ablations/h1_no_hlm.pt", "student_h1.pt")),
+    _student("h1_lego_h", "tcvit", hlm=True, vanilla_vae=False,
+             paths=("student_h1.pt", "ablations/h1_lego_h_seed*.pt")),
+    _student("h1_no_hlm", "tcvit", hlm=False,
+             paths=("ablations/h1_no_hlm.pt", "ablations/h1_no_hlm_seed*.pt", "student_h1.pt")),
     _student("h1_vanilla", "vanilla"),
     _student("h1_eph", "eph", hlm=False),
     _student("h1_rmah", "rmah"),
@@ -218,23 +227,26 @@ def read_info(path: Path) -> CheckpointInfo:
 
 @dataclass(frozen=True)
 class Resolution:
-    """Where a row's checkpoint is.
+    """Where a row's checkpoints are.
 
     Attributes:
         key: the row (a key of :data:`ROWS`).
-        path: the matching checkpoint, or the path that would hold the row.
-        found: whether ``path`` holds the row.
+        path: the first matching checkpoint, or the path that would hold the row.
+        found: whether the row has a checkpoint.
         note: what the other candidate files hold, when some exist but do not match.
+        paths: every matching checkpoint, one per training seed (empty when not found).
     """
 
     key: str
     path: Path
     found: bool
     note: str = ""
+    paths: tuple[Path, ...] = ()
 
 
 def resolve_row(spec: RowSpec, root: Path, read: Callable[[Path], CheckpointInfo] = read_info) -> Resolution:
-    """The checkpoint of ``spec`` under ``root``: the first candidate that exists and matches.
+    """The checkpoints of ``spec`` under ``root``: every candidate file that exists and matches
+    (globs expanded in name order), each a training seed of the row.
 
     Args:
         spec: the row.
@@ -245,17 +257,41 @@ def resolve_row(spec: RowSpec, root: Path, read: Callable[[Path], CheckpointInfo
         the :class:`Resolution`; when no candidate matches, ``path`` is the first candidate and
         ``note`` says what each existing candidate holds instead.
     """
-    notes = []
+    notes, found = [], []
     for rel in spec.paths:
-        path = root / rel
-        if not path.is_file():
-            continue
-        info = read(path)
-        why = mismatch(spec, info)
-        if why is None:
-            return Resolution(spec.key, path, True)
-        notes.append(f"{path} holds the {describe(info)}: {why}")
+        for path in (sorted(root.glob(rel)) if any(c in rel for c in "*?[") else [root / rel]):
+            if not path.is_file() or path in found:
+                continue
+            info = read(path)
+            why = mismatch(spec, info)
+            if why is None:
+                found.append(path)
+            else:
+                notes.append(f"{path} holds the {describe(info)}: {why}")
+    if found:
+        return Resolution(spec.key, found[0], True, "; ".join(notes), paths=tuple(found))
     return Resolution(spec.key, root / spec.paths[0], False, "; ".join(notes))
+
+
+def across_seeds(aggregates: Sequence[Mapping[str, Mapping[str, Value]]]) -> dict[str, dict[str, Value]]:
+    """One row's figures from several training seeds: per group and metric, the mean and std
+    (population, as ``evaluate.py``'s over trail grids) of the seeds' means; NaN means are left
+    out, and a metric no seed has is (nan, nan).
+
+    Args:
+        aggregates: each seed's ``{group: {metric: (mean, std)}}``; only groups every seed has.
+    """
+    groups = set.intersection(*(set(a) for a in aggregates))
+    out: dict[str, dict[str, Value]] = {}
+    for group in sorted(groups, key=lambda g: (g == "overall", g)):
+        metrics = dict.fromkeys(k for a in aggregates for k in a[group])
+        out[group] = {}
+        for metric in metrics:
+            means = [a[group][metric][0] for a in aggregates if metric in a[group]]
+            finite = [m for m in means if not math.isnan(m)]
+            out[group][metric] = ((float(np.mean(finite)), float(np.std(finite))) if finite
+                                  else (math.nan, math.nan))
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -480,9 +516,14 @@ class RowResult:
 
     Attributes:
         key: the row; status: ``"evaluated"``, ``"not trained"`` or ``"failed"``.
-        path: the checkpoint evaluated, or the one that would hold the row.
+        path: the checkpoint evaluated (the first, with several seeds), or the one that would
+            hold the row.
         note: why not trained (what other candidates hold) or why the evaluation failed.
-        rows: the aggregate ({group: {metric: (mean, std)}}) when evaluated.
+        rows: the aggregate ({group: {metric: (mean, std)}}) when evaluated: one checkpoint's
+            mean ± std over trail grids, or with several seeds the mean ± std over the seeds
+            (:func:`across_seeds`).
+        paths: every checkpoint of the row (its training seeds).
+        per_seed: each checkpoint's own aggregate, in the order of ``paths``.
     """
 
     key: str
@@ -490,6 +531,8 @@ class RowResult:
     path: Path
     note: str = ""
     rows: dict[str, dict[str, Value]] | None = field(default=None, repr=False)
+    paths: tuple[Path, ...] = ()
+    per_seed: list[dict] | None = field(default=None, repr=False)
 
 
 def run_rows(keys: Sequence[str], root: Path, settings: Settings, out: Path,
@@ -516,18 +559,25 @@ def run_rows(keys: Sequence[str], root: Path, settings: Settings, out: Path,
             results[key] = RowResult(key, "not trained", res.path, res.note)
             print(f"{key}: not trained ({res.path}{'; ' + res.note if res.note else ''})", flush=True)
             continue
-        where = res.path.resolve()
-        if where not in cache:
-            print(f"\n=== {key}: evaluating {res.path} ===", flush=True)
-            name = str(res.path.relative_to(root).with_suffix("")).replace("/", "_")
-            try:
-                cache[where] = ("evaluated", evaluate_fn(res.path, settings, out / "evals" / name))
-            except Exception as err:  # one bad checkpoint must not lose the others' hours of evaluation
-                cache[where] = ("failed", f"{type(err).__name__}: {err}")
-                print(f"{key}: evaluation of {res.path} failed: {cache[where][1]}", file=sys.stderr, flush=True)
-        status, value = cache[where]
-        results[key] = (RowResult(key, status, res.path, rows=value) if status == "evaluated"
-                        else RowResult(key, status, res.path, note=str(value)))
+        for path in res.paths:
+            where = path.resolve()
+            if where not in cache:
+                print(f"\n=== {key}: evaluating {path} ===", flush=True)
+                name = str(path.relative_to(root).with_suffix("")).replace("/", "_")
+                try:
+                    cache[where] = ("evaluated", evaluate_fn(path, settings, out / "evals" / name))
+                except Exception as err:  # one bad checkpoint must not lose the others' hours of evaluation
+                    cache[where] = ("failed", f"{type(err).__name__}: {err}")
+                    print(f"{key}: evaluation of {path} failed: {cache[where][1]}", file=sys.stderr, flush=True)
+        outcomes = [cache[p.resolve()] for p in res.paths]
+        failed = [str(value) if len(res.paths) == 1 else f"{p}: {value}"
+                  for p, (status, value) in zip(res.paths, outcomes, strict=True) if status == "failed"]
+        if failed:  # a row is not reported on fewer seeds than it has
+            results[key] = RowResult(key, "failed", res.path, note="; ".join(failed), paths=res.paths)
+            continue
+        per_seed = [value for _, value in outcomes]
+        rows = per_seed[0] if len(per_seed) == 1 else across_seeds(per_seed)
+        results[key] = RowResult(key, "evaluated", res.path, rows=rows, paths=res.paths, per_seed=per_seed)
     return results
 
 
@@ -554,11 +604,14 @@ def _ours(row: PaperRow, result: RowResult | None) -> tuple[str, dict[str, Value
         return "not trained", dict.fromkeys(METRICS), f"not trained: `{result.path}`{note}"
     if result.status == "failed":
         return "failed", dict.fromkeys(METRICS), f"evaluation failed: `{result.path}`: {result.note}"
+    where = f"`{result.path}`"
+    if len(result.paths) > 1:
+        where = (", ".join(f"`{p}`" for p in result.paths)
+                 + f" ({len(result.paths)} training seeds: mean ± std over seeds)")
     group = (result.rows or {}).get(row.group)
     if group is None:
-        return ("not evaluated", dict.fromkeys(METRICS),
-                f"`{result.path}`: {row.group} not among the evaluated categories")
-    return "evaluated", {m: group[m] for m in METRICS}, f"`{result.path}`"
+        return ("not evaluated", dict.fromkeys(METRICS), f"{where}: {row.group} not among the evaluated categories")
+    return "evaluated", {m: group[m] for m in METRICS}, where
 
 
 def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
@@ -595,14 +648,16 @@ def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
 def csv_rows(table: PaperTable, results: Mapping[str, RowResult] | None) -> list[dict]:
     """One table as CSV records: per method one ``ours`` record (unless ``results`` is None) and
     one ``paper`` record (when the paper has the row), each with ``<metric>_mean``/``_std``
-    (empty when there is no figure) and ``status``/``checkpoint``/``note``."""
+    (empty when there is no figure) and ``status``/``checkpoint``/``note`` (a row's training
+    seeds' checkpoints joined by ``;``)."""
     out = []
     for row in table.rows:
         base = {"table": table.name, "label": table.label, "method": row.method, "row": row.key, "trails": row.group}
         if results is not None:
             res = results.get(row.key)
             status, ours, _ = _ours(row, res)
-            rec = {**base, "source": "ours", "status": status, "checkpoint": str(res.path) if res else "",
+            where = "" if res is None else ";".join(str(q) for q in (res.paths or (res.path,)))
+            rec = {**base, "source": "ours", "status": status, "checkpoint": where,
                    "note": res.note if res else ""}
             out.append(_with_metrics(rec, ours))
         if row.paper is not None:

@@ -160,8 +160,9 @@ def test_rows_take_only_checkpoints_that_match_them():
     oracle = pt.checkpoint_info({"robot": "h1", "kind": "oracle"})
     assert pt.mismatch(rows["h1_oracle"], oracle) is None
     assert pt.mismatch(rows["h1_lego_h"], oracle) == "kind 'oracle', the row needs 'student'"
-    assert rows["h1_lego_h"].paths == ("student_h1.pt",) and rows["g1_lego_h"].paths == ("student_g1.pt",)
-    assert rows["h1_no_hlm"].paths == ("ablations/h1_no_hlm.pt", "student_h1.pt")
+    assert rows["h1_lego_h"].paths == ("student_h1.pt", "ablations/h1_lego_h_seed*.pt")
+    assert rows["g1_lego_h"].paths == ("student_g1.pt",)
+    assert rows["h1_no_hlm"].paths == ("ablations/h1_no_hlm.pt", "ablations/h1_no_hlm_seed*.pt", "student_h1.pt")
     for key in ("h1_vanilla", "h1_eph", "h1_rmah", "h1_rmab", "h1_ct", "h1_vanilla_vae", "h1_eph_hlm"):
         assert rows[key].paths == (f"ablations/{key}.pt",)
 
@@ -334,3 +335,49 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys):
     assert "Trail seeds: 9101" in text and "--trail-seeds 9101" in text
     assert f"not trained: `{ck / 'student_h1.pt'}`" in text
     assert "| Oracle | ours | " in capsys.readouterr().out
+
+
+def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
+    """Every matching candidate is a training seed (globs expanded in name order); the row is the
+    mean ± std over the seeds' own means; one failed seed fails the row; CSV and markdown name
+    every checkpoint."""
+    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(True))
+    for seed in (1, 2):
+        fake_checkpoint(tmp_path / "ablations" / f"h1_lego_h_seed{seed}.pt", student_meta(), hlm_config(True))
+        fake_checkpoint(tmp_path / "ablations" / f"h1_no_hlm_seed{seed}.pt", student_meta(), hlm_config(False))
+    fake_checkpoint(tmp_path / "ablations" / "h1_no_hlm_seed3.pt", student_meta(), hlm_config(True))  # HLM on: not a seed
+    lego = pt.resolve_row(pt.ROWS["h1_lego_h"], tmp_path)
+    assert lego.paths == (tmp_path / "student_h1.pt", tmp_path / "ablations" / "h1_lego_h_seed1.pt",
+                          tmp_path / "ablations" / "h1_lego_h_seed2.pt")
+    no_hlm = pt.resolve_row(pt.ROWS["h1_no_hlm"], tmp_path)
+    assert [p.name for p in no_hlm.paths] == ["h1_no_hlm_seed1.pt", "h1_no_hlm_seed2.pt"]
+    assert "h1_no_hlm_seed3.pt holds the H1 student (tcvit, HLM on)" in no_hlm.note
+    success = {"student_h1": 50.0, "h1_lego_h_seed1": 56.0, "h1_lego_h_seed2": 59.0,
+               "h1_no_hlm_seed1": 40.0, "h1_no_hlm_seed2": 44.0}
+
+    def fake_evaluate(path, settings, out):
+        agg = aggregate_of(success[path.stem])
+        agg["overall"] = {**agg["overall"], "time_to_reach": (math.nan, math.nan) if "seed1" in path.stem
+                          else (10.0 + success[path.stem], 0.0)}
+        return agg
+
+    results = pt.run_rows(["h1_lego_h", "h1_no_hlm"], tmp_path, pt.Settings((1,)), tmp_path / "out",
+                          evaluate_fn=fake_evaluate)
+    lego_sr = results["h1_lego_h"].rows["overall"]["success"]
+    assert lego_sr == pytest.approx((55.0, math.sqrt(((50 - 55) ** 2 + 1 + 16) / 3)))
+    assert results["h1_no_hlm"].rows["overall"]["success"] == pytest.approx((42.0, 2.0))
+    assert results["h1_no_hlm"].rows["overall"]["time_to_reach"] == pytest.approx((54.0, 0.0))  # the NaN seed left out
+    assert [a["overall"]["success"][0] for a in results["h1_lego_h"].per_seed] == [50.0, 56.0, 59.0]
+    md = pt.markdown(pt.TABLES["ablation"], results)
+    assert "`" + str(tmp_path / "ablations" / "h1_no_hlm_seed2.pt") + "` (2 training seeds: mean ± std over seeds)" in md
+    assert "42.00 ± 2.00" in md
+    rec = next(r for r in pt.csv_rows(pt.TABLES["ablation"], results) if r["row"] == "h1_no_hlm" and r["source"] == "ours")
+    assert rec["checkpoint"].split(";") == [str(p) for p in no_hlm.paths] and rec["success_mean"] == pytest.approx(42.0)
+
+    def one_fails(path, settings, out):
+        if path.stem == "h1_no_hlm_seed2":
+            raise RuntimeError("diverged")
+        return fake_evaluate(path, settings, out)
+
+    failed = pt.run_rows(["h1_no_hlm"], tmp_path, pt.Settings((1,)), tmp_path / "out2", evaluate_fn=one_fails)
+    assert failed["h1_no_hlm"].status == "failed" and "h1_no_hlm_seed2.pt: RuntimeError: diverged" in failed["h1_no_hlm"].note
