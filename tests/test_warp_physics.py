@@ -315,6 +315,13 @@ def test_precompile_loads_every_module_before_the_first_step(pair, monkeypatch):
     with pytest.warns(UserWarning, match="recording the launches failed .*RuntimeError: boom"):
         assert worlds.precompile([lambda: (_ for _ in ()).throw(RuntimeError("boom"))]) == []
     assert wp.launch is launch
+
+    def broken_force_load(**kwargs):
+        raise RuntimeError("nvrtc error")
+
+    monkeypatch.setattr(wp, "force_load", broken_force_load)
+    with pytest.warns(UserWarning, match="compiling the recorded modules failed .*nvrtc error"):
+        assert worlds.precompile([worlds._launch_control_step]) == names  # recorded all the same
     off = WarpWorlds(w.built, 1, compile_workers=0)
     assert off.precompile([off._launch_control_step]) == []
     with pytest.raises(ValueError, match="compile_workers must be >= 0, got -1"):

@@ -245,9 +245,13 @@ class WarpWorlds(Worlds):
         by_block: dict[int, list] = {}
         for (_, block), module in wanted.items():
             by_block.setdefault(block, []).append(module)
-        for block, modules in by_block.items():
-            wp.force_load(device=self.device, modules=modules, block_dim=block,
-                          max_workers=min(self.compile_workers, len(modules)))
+        try:
+            for block, modules in by_block.items():
+                wp.force_load(device=self.device, modules=modules, block_dim=block,
+                              max_workers=min(self.compile_workers, len(modules)))
+        except Exception as err:  # noqa: BLE001 - what did not load here compiles at its first launch
+            warnings.warn(f"WarpWorlds.precompile: compiling the recorded modules failed ({type(err).__name__}: "
+                          f"{err}); the rest compile at their first launch", stacklevel=2)
         return sorted({m.name for m in wanted.values()})
 
     # ------------------------------------------------------------------ state
