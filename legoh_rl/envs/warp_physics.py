@@ -198,8 +198,9 @@ class WarpWorlds(Worlds):
             calls: functions of no argument that launch Warp kernels on :attr:`device`.
 
         Returns:
-            the names of the modules loaded (empty with ``compile_workers=0``, or when the
-            recording failed: it warns, and the modules compile at their first launch).
+            the names of the modules recorded and handed to ``warp.force_load`` (empty with
+            ``compile_workers=0``, or when the recording failed; a failed recording or compile
+            warns, and what is not loaded compiles at its first launch).
         """
         if self.compile_workers == 0:
             return []
