@@ -15,9 +15,9 @@ method of a table is a row of ours (``mean ± std`` of the six metrics) with the
 it.
 
 Each method is one or more checkpoints under ``--checkpoints`` (:data:`ROWS`: ``oracle_h1.pt``,
-``student_h1.pt``, ``student_g1.pt``, ``ablations/<robot>_<row>.pt``; the LEGO-H and "w TC-ViT"
-rows also take training seeds, ``ablations/h1_lego_h_seed<k>.pt`` and
-``ablations/h1_no_hlm_seed<k>.pt``). A student's file is checked against the row before it is
+``student_h1.pt``, ``student_g1.pt``, ``ablations/<robot>_<row>.pt``; every row under
+``ablations/`` also takes training seeds, ``ablations/<robot>_<row>_seed<k>.pt``, as the runs of
+``recipes/config/experiment/<robot>_<row>.yaml`` with ``env.seed=<k>`` are named). A student's file is checked against the row before it is
 used (robot, perception, HLM on or off, vanilla VAE; see :func:`checkpoint_info` and
 :func:`mismatch`): ``student_h1.pt`` is a LEGO-H seed when it was trained with HLM and a "w TC-ViT"
 seed when it was not. A row with several matching files is reported as the mean ± std over them
@@ -86,6 +86,8 @@ class RowSpec:
             ``student.perception``); None for an oracle.
         hlm: whether the student was trained with HLM (``hlm.enabled``); None: either.
         vanilla_vae: whether its HLM prior is the vanilla VAE (``hlm.vanilla_vae``); None: either.
+        locomotion: the student's locomotion module (``student.locomotion``): ``learned`` or
+            ``oracle`` (the teacher's actor, frozen: the paper's RMA baselines); None: either.
         paths: candidate files relative to the checkpoints folder, globs allowed
             (``ablations/h1_no_hlm_seed*.pt``); every existing file that matches is one training
             seed of the row, and the first candidate names where the row would go.
@@ -98,12 +100,14 @@ class RowSpec:
     perception: str | None = None
     hlm: bool | None = None
     vanilla_vae: bool | None = None
+    locomotion: str | None = None
 
 
 def _student(key: str, perception: str, hlm: bool | None = None, vanilla_vae: bool | None = None,
-             paths: tuple[str, ...] | None = None) -> RowSpec:
+             paths: tuple[str, ...] | None = None, locomotion: str | None = "learned") -> RowSpec:
     robot = key.split("_", 1)[0]
-    return RowSpec(key, robot, "student", paths or (f"ablations/{key}.pt",), perception, hlm, vanilla_vae)
+    return RowSpec(key, robot, "student", paths or (f"ablations/{key}.pt", f"ablations/{key}_seed*.pt"),
+                   perception, hlm, vanilla_vae, locomotion)
 
 
 #: every method of the tables, by key. LEGO-H is TC-ViT with HLM (masked VAE); "w TC-ViT" is
@@ -118,8 +122,8 @@ ROWS: dict[str, RowSpec] = {spec.key: spec for spec in (
              paths=("ablations/h1_no_hlm.pt", "ablations/h1_no_hlm_seed*.pt", "student_h1.pt")),
     _student("h1_vanilla", "vanilla"),
     _student("h1_eph", "eph", hlm=False),
-    _student("h1_rmah", "rmah"),
-    _student("h1_rmab", "rmab"),
+    _student("h1_rmah", "rmah", locomotion="oracle"),  # RMA: "a frozen oracle policy with an adapter"
+    _student("h1_rmab", "rmab", locomotion="oracle"),
     _student("h1_ct", "tcvit_ct"),
     _student("h1_vanilla_vae", "tcvit", hlm=True, vanilla_vae=True),
     _student("h1_eph_hlm", "eph", hlm=True, vanilla_vae=False),
@@ -135,6 +139,7 @@ class CheckpointInfo:
     Attributes:
         robot, kind, perception: ``meta["robot"]``, ``meta["kind"]``, ``meta["perception"]``.
         hlm: trained with HLM; vanilla_vae: HLM's prior was the vanilla VAE (False without HLM).
+        locomotion: ``meta["locomotion"]``, ``"learned"`` when absent (a student's own MLP).
     """
 
     robot: str | None
@@ -142,6 +147,7 @@ class CheckpointInfo:
     perception: str | None = None
     hlm: bool | None = None
     vanilla_vae: bool | None = None
+    locomotion: str | None = None
 
 
 def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int | None = None) -> CheckpointInfo:
@@ -178,7 +184,8 @@ def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int
     kind = meta.get("kind")
     return CheckpointInfo(robot=meta.get("robot"), kind=kind,
                           perception=meta.get("perception") if kind == "student" else None,
-                          hlm=hlm if kind == "student" else None, vanilla_vae=vae if kind == "student" else None)
+                          hlm=hlm if kind == "student" else None, vanilla_vae=vae if kind == "student" else None,
+                          locomotion=meta.get("locomotion", "learned") if kind == "student" else None)
 
 
 def describe(info: CheckpointInfo) -> str:
@@ -189,6 +196,8 @@ def describe(info: CheckpointInfo) -> str:
     hlm = {None: "HLM unknown", False: "HLM off", True: "HLM on"}[info.hlm]
     if info.vanilla_vae:
         hlm += ", vanilla VAE"
+    if info.locomotion == "oracle":
+        hlm += ", frozen oracle locomotion"
     return f"{robot} student ({info.perception}, {hlm})"
 
 
@@ -214,6 +223,8 @@ def mismatch(spec: RowSpec, info: CheckpointInfo) -> str | None:
             return f"HLM {'on' if info.hlm else 'off'}, the row needs HLM {'on' if spec.hlm else 'off'}"
     if spec.vanilla_vae is not None and info.hlm and info.vanilla_vae != spec.vanilla_vae:
         return f"{'a' if info.vanilla_vae else 'no'} vanilla VAE, the row needs {'one' if spec.vanilla_vae else 'the masked VAE'}"
+    if spec.locomotion is not None and info.locomotion != spec.locomotion:
+        return f"{info.locomotion} locomotion, the row needs {spec.locomotion} (student.locomotion={spec.locomotion})"
     return None
 
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when torch loads)
 
 # isort: split
+import dataclasses
 import functools
 import hashlib
 from pathlib import Path
@@ -68,7 +69,7 @@ from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
 from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
-from legoh_rl.training.student import make_student, student_env
+from legoh_rl.training.student import LOCOMOTIONS, make_student, student_env
 
 PERCEPTIONS = ("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")
 
@@ -78,6 +79,7 @@ register_configs()  # the env group's defaults, read from HikingEnvConfig
 def validate(cfg: DictConfig) -> None:
     if cfg.student.perception not in PERCEPTIONS:
         raise ValueError(f"unknown student.perception {cfg.student.perception!r}; valid: {list(PERCEPTIONS)}")
+    check_locomotion(cfg)
     if cfg.teacher is None:
         raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
     if not Path(cfg.teacher).is_file():
@@ -104,6 +106,33 @@ def validate(cfg: DictConfig) -> None:
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
                          f"({cfg.env.num_envs}): minibatches split the worlds")
+
+
+def check_locomotion(cfg: DictConfig) -> None:
+    """``student.locomotion``: ``learned`` (the student's own MLP) or ``oracle`` (RMA: the teacher's
+    actor, frozen, fed by an adapter that estimates its latents).
+
+    Raises:
+        ValueError: an unknown value; ``oracle`` with a perception that does not estimate the
+            privileged latent, with the DAgger replay window (it trains the locomotion module
+            alone) or with HLM (a prior on the locomotion module's actions): each names the
+            setting to change.
+    """
+    locomotion = cfg.student.get("locomotion", "learned")
+    if locomotion not in LOCOMOTIONS:
+        raise ValueError(f"unknown student.locomotion {locomotion!r}; valid: {list(LOCOMOTIONS)}")
+    if locomotion != "oracle":
+        return
+    if cfg.student.perception not in ("rmah", "rmab"):
+        raise ValueError(f"student.locomotion=oracle feeds the teacher's frozen actor with the perception's "
+                         f"estimate of its privileged latent, which only rmah and rmab make; got "
+                         f"student.perception={cfg.student.perception}")
+    if int((cfg.get("dagger_replay") or {}).get("capacity", 0)) > 0:
+        raise ValueError("student.locomotion=oracle freezes the locomotion module, which the DAgger replay "
+                         "window trains: set dagger_replay.capacity=0")
+    if cfg.hlm.enabled:
+        raise ValueError("student.locomotion=oracle freezes the locomotion module, whose actions HLM shapes: "
+                         "set hlm.enabled=false")
 
 
 def file_digest(path: str | Path) -> str:
@@ -134,7 +163,10 @@ def make_losses(student, critic, num_actions: int, cfg: DictConfig, device: torc
     ppo_cfg = PPOConfig(clip_epsilon=cfg.ppo.clip_epsilon, entropy_coeff=cfg.ppo.entropy_coeff, gamma=cfg.ppo.gamma,
                         lmbda=cfg.ppo.lmbda, learning_rate=cfg.ppo.learning_rate, desired_kl=cfg.ppo.desired_kl)
     ppo, gae = make_ppo_loss(student.actor, critic, ppo_cfg)
-    dagger = DAggerLoss(w1=cfg.imitation.w1, w2=cfg.imitation.w2, w3=cfg.imitation.w3)
+    # the privileged-latent term trains what a frozen oracle actor (student.locomotion=oracle) reads
+    oracle = cfg.student.get("locomotion", "learned") == "oracle"
+    dagger = DAggerLoss(w1=cfg.imitation.w1, w2=cfg.imitation.w2, w3=cfg.imitation.w3,
+                        w_priv=float(cfg.imitation.get("w_priv", 1.0)) if oracle else 0.0)
     dagger.set_keys(action_uni=STUDENT_ACTION_KEY)
     h = cfg.hlm
     mask_ratio = 0.0 if h.vanilla_vae else h.mask_ratio
@@ -199,16 +231,24 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     teacher = Teacher(cfg.teacher, cfg.env.robot, device)
     base = make_env(cfg.env, mode="student", device=str(device), **gait_kwargs(teacher.meta))  # the teacher's clock
     init_std = cfg.student.get("init_std") or float(teacher.action_std.mean())  # null: the teacher's
-    student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std))
+    oracle = cfg.student.get("locomotion", "learned") == "oracle"
+    oracle_config = dataclasses.asdict(teacher.networks.cfg) if oracle else None
+    student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std),
+                           oracle_config=oracle_config)
+    if oracle:  # RMA: the teacher's actor, frozen, is the student's locomotion
+        student.actor.module[0].module.load_state_dict(teacher.networks.actor.state_dict())
     student.policy.to(device)  # perception (in its hold) and locomotion
     env = student_env(base, student)
     critic, critic_nets = teacher.make_critic()
     ppo, gae, dagger, vae, hlm = make_losses(student, critic, base.A, cfg, device)
-    params = list(student.perception.parameters()) + list(student.actor.parameters()) + list(critic.parameters())
+    params = [q for q in (*student.perception.parameters(), *student.actor.parameters(), *critic.parameters())
+              if q.requires_grad]  # not a frozen oracle locomotion
     optim = torch.optim.Adam(params, lr=cfg.ppo.learning_rate)
     sched = AdaptiveKLScheduler(optim, cfg.ppo.desired_kl, max_lr=max(cfg.ppo.learning_rate, 1e-2))
     vae_optim = torch.optim.Adam(vae.parameters(), lr=cfg.hlm.vae_lr)
     meta = {**policy_meta(base, "student"), "perception": cfg.student.perception, "preset": cfg.student.preset}
+    if oracle:  # learned locomotion: no entries, as in every checkpoint made before the option
+        meta.update(locomotion="oracle", oracle_config=oracle_config)
     rp = cfg.get("dagger_replay") or {}
     replay = None
     if int(rp.get("capacity", 0)) > 0:  # aggregated DAgger data for the locomotion module
@@ -254,7 +294,8 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
             observation layout, perception or teacher (names which).
     """
     require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
-    check_meta(state["meta"], {k: v for k, v in p.meta.items() if k != "branched_from"}, path)
+    # the oracle's config is that of the teacher, which check_teacher compares by its digest
+    check_meta(state["meta"], {k: v for k, v in p.meta.items() if k not in ("branched_from", "oracle_config")}, path)
     check_teacher(state, p.cfg, p.teacher_sha256, path)
     hint = "student.perception, student.preset and the teacher must be the ones it was trained with"
     load_weights(p.student.perception, state["perception"], path, "perception weights", hint)

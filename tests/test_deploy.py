@@ -165,6 +165,33 @@ def test_a_feedforward_perception_exports_without_state_and_tcvit_ct_is_refused(
         export_onnx(src, tmp_path / "ct.onnx")
 
 
+def test_a_frozen_oracle_rma_student_exports_and_acts_like_its_checkpoint(tmp_path):
+    """An RMA student (student.locomotion=oracle): its locomotion graph is the oracle's actor
+    reading the adapter's estimates, and the pair acts like the torch checkpoint."""
+    oracle = load_checkpoint(ORACLE)
+    meta = {**load_checkpoint(STUDENT)["meta"], "perception": "rmah", "locomotion": "oracle",
+            "oracle_config": oracle["oracle_config"]}
+    net, actor, _ = student_modules(meta)
+    torch.manual_seed(0)
+    for q in net.parameters():  # an untrained adapter, but not the default init
+        q.data.normal_(0.0, 0.1)
+    actor.module[0].module.load_state_dict({k[len("actor."):]: v for k, v in oracle["networks"].items()
+                                            if k.startswith("actor.")})
+    src = save_checkpoint(tmp_path / "rmah.pt", {"meta": meta, "perception": net.state_dict(),
+                                                 "actor": actor.state_dict()})
+    paths = export_onnx(src, tmp_path / "rmah.onnx")
+    assert [k for _, k in read_metadata(paths["locomotion"])["inputs"]] == [
+        "proprio", "z_uni", "priv_latent_uni", "goals_uni"]
+    env, policy, _ = load_policy(str(src), TINY, variants=1, num_threads=1)
+    _, onnx_policy, kind = load_policy(str(paths["perception"]), TINY, variants=1, num_threads=1)
+    assert kind == "student (rmah, onnx)"
+    carried = ["held_z_uni", "held_delta_g0", "held_goals_uni", "held_priv_latent_uni", "held_valid"]
+    worst = 0.0
+    for _, mine, theirs in _deterministic_steps(env, policy, onnx_policy, 8, carried):
+        worst = max(worst, float((mine["action"] - theirs["action"]).abs().max()))
+    assert worst < 1e-5
+
+
 def test_missing_deploy_packages_say_what_to_install(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "onnx", None)  # import onnx -> ImportError
     monkeypatch.setitem(sys.modules, "onnxruntime", None)

@@ -78,12 +78,23 @@ def test_gradients_reach_every_parameter(cpu_cfg, name):
     net = make_perception(name, cpu_cfg)
     out = net(make_inputs(cpu_cfg, recurrent_state=True))
     g = torch.Generator().manual_seed(1)
-    loss = sum((out[k] * torch.randn(out[k].shape, generator=g)).sum()
-               for k in ("z_uni", "delta_g0", "goals_uni"))
+    outputs = ("z_uni", "delta_g0", "goals_uni") + (("priv_latent_uni",) if "priv_latent_uni" in net.out_keys else ())
+    loss = sum((out[k] * torch.randn(out[k].shape, generator=g)).sum() for k in outputs)
     loss.backward()
     for pname, p in net.named_parameters():
         assert p.grad is not None, f"{name}: no gradient for {pname}"
         assert p.grad.abs().sum() > 0, f"{name}: zero gradient for {pname}"
+
+
+@pytest.mark.parametrize("name", sorted(PERCEPTION_BUILDERS))
+def test_only_the_rma_adapters_estimate_the_privileged_latent(cpu_cfg, name):
+    net = make_perception(name, cpu_cfg)
+    rma = name in ("rmah", "rmab")
+    assert ("priv_latent_uni" in net.out_keys) == rma and ("priv_latent_uni" in net.spec.keys()) == rma
+    if rma:
+        out = net(make_inputs(cpu_cfg, recurrent_state=True))
+        assert out["priv_latent_uni"].shape[-1] == cpu_cfg.io.priv_latent_dim == 20
+        assert net.spec["priv_latent_uni"].shape == (20,)
 
 
 def test_num_goals_and_goal_channels_come_from_config():

@@ -44,6 +44,22 @@ def test_matches_hand_computation_with_weights():
     assert set(loss.out_keys) == set(loss(hand_batch()).keys())
 
 
+def test_privileged_latent_term_is_off_by_default_and_hand_computed_when_on():
+    td = hand_batch()
+    assert "loss_im_priv_latent" not in DAggerLoss()(td).keys()  # w_priv = 0: the keys are not read
+    # ||dp||^2: s1 (1, -2) -> 5; s2 (0, 0.5) -> 0.25; mean 2.625
+    td["priv_latent_tea"] = torch.tensor([[1.0, 0.0], [0.0, 0.5]])
+    td["priv_latent_uni"] = torch.tensor([[0.0, 2.0], [0.0, 0.0]])
+    td["priv_latent_uni"].requires_grad_(True)
+    out = DAggerLoss(w_priv=2.0)(td)
+    torch.testing.assert_close(out["loss_im_priv_latent"], torch.tensor(2.0 * 2.625))
+    torch.testing.assert_close(out["im_priv_latent"], torch.tensor(2.625))
+    out["loss_im_priv_latent"].backward()  # d/dp_uni of 2 mean_b ||p_tea - p_uni||^2 = -2 (p_tea - p_uni)
+    torch.testing.assert_close(td["priv_latent_uni"].grad, -2.0 * (td["priv_latent_tea"] - td["priv_latent_uni"]).detach())
+    with pytest.raises(ValueError, match="w_priv"):
+        DAggerLoss(w_priv=-1.0)
+
+
 def test_gradients_reach_student_not_teacher():
     td = hand_batch()
     for key in ("z_tea", "goals_tea", "action_tea", "z_uni", "goals_uni", "loc"):

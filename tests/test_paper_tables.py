@@ -155,8 +155,16 @@ def test_rows_take_only_checkpoints_that_match_them():
     assert pt.mismatch(rows["h1_eph"], eph) == "HLM on, the row needs HLM off"
     assert pt.mismatch(rows["h1_lego_h"], eph) == "perception 'eph', the row needs 'tcvit'"
     for key, perception in [("h1_vanilla", "vanilla"), ("h1_ct", "tcvit_ct"), ("h1_rmah", "rmah"), ("h1_rmab", "rmab")]:
+        locomotion = {"locomotion": "oracle"} if key.startswith("h1_rma") else {}
         for hlm in (True, False):  # the paper does not say: either
-            assert pt.mismatch(rows[key], pt.checkpoint_info(student_meta(perception=perception), hlm_config(hlm))) is None
+            info = pt.checkpoint_info(student_meta(perception=perception, **locomotion), hlm_config(hlm))
+            assert pt.mismatch(rows[key], info) is None
+    # RMA is "a frozen oracle policy with an adapter": an adapter with a learned locomotion is not the row
+    learned = pt.checkpoint_info(student_meta(perception="rmah"), hlm_config(False))
+    assert learned.locomotion == "learned"
+    assert pt.mismatch(rows["h1_rmah"], learned) == "learned locomotion, the row needs oracle (student.locomotion=oracle)"
+    assert pt.mismatch(rows["h1_vanilla"], pt.checkpoint_info(student_meta(perception="vanilla", locomotion="oracle"),
+                                                              hlm_config(False))) is not None
     oracle = pt.checkpoint_info({"robot": "h1", "kind": "oracle"})
     assert pt.mismatch(rows["h1_oracle"], oracle) is None
     assert pt.mismatch(rows["h1_lego_h"], oracle) == "kind 'oracle', the row needs 'student'"
@@ -164,7 +172,7 @@ def test_rows_take_only_checkpoints_that_match_them():
     assert rows["g1_lego_h"].paths == ("student_g1.pt",)
     assert rows["h1_no_hlm"].paths == ("ablations/h1_no_hlm.pt", "ablations/h1_no_hlm_seed*.pt", "student_h1.pt")
     for key in ("h1_vanilla", "h1_eph", "h1_rmah", "h1_rmab", "h1_ct", "h1_vanilla_vae", "h1_eph_hlm"):
-        assert rows[key].paths == (f"ablations/{key}.pt",)
+        assert rows[key].paths == (f"ablations/{key}.pt", f"ablations/{key}_seed*.pt")
 
 
 def fake_checkpoint(path: Path, meta: dict, config: dict | None = None) -> Path:

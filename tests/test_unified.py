@@ -254,3 +254,58 @@ def test_a_branch_from_a_missing_or_foreign_checkpoint_is_refused(teacher, tmp_p
     with pytest.raises(Exception, match="perception"):
         unified.build(tiny(teacher, tmp_path / "b", f"checkpoint.branch={src / 'last.pt'}",
                            "student.perception=vanilla"))
+
+
+RMA = ["student.perception=rmah", "student.locomotion=oracle", "hlm.enabled=false"]
+
+
+def test_rma_student_acts_with_the_teachers_actor_frozen(teacher, tmp_path):
+    """RMA (student.locomotion=oracle): the locomotion module is the teacher's actor with its
+    weights; fed the teacher's own latents and goals it gives the teacher's action; an update
+    trains the adapter (the privileged-latent term included) and leaves the actor as it was."""
+    p = unified.build(tiny(teacher, tmp_path, *RMA))
+    actor_net = p.student.actor.module[0].module
+    for k, v in p.teacher.networks.actor.state_dict().items():
+        assert torch.equal(actor_net.state_dict()[k], v), k
+    assert not any(q.requires_grad for q in actor_net.parameters())
+    assert p.meta["locomotion"] == "oracle" and p.meta["oracle_config"]["num_actions"] == p.env.A
+    with torch.no_grad():
+        data = p.collect_env.rollout(10, p.student.policy, break_when_any_done=False)
+        p.teacher.label(data)
+        fed = data.select("proprio").clone()
+        fed.update({"z_uni": data["z_tea"], "priv_latent_uni": data["priv_latent_tea"],
+                    "goals_uni": data["goals_tea"]})
+        assert torch.allclose(p.student.actor.module[0](fed)["loc"], data["action_tea"], atol=1e-6)
+    before = {k: q.detach().clone() for k, q in p.student.perception.named_parameters()}
+    frozen = [q.detach().clone() for q in actor_net.parameters()]
+    stats = unified.update(p, data, iteration=0, cfg=tiny(teacher, tmp_path, *RMA))
+    assert stats["train/phase_rl"] == 0.0 and stats["loss/im_priv_latent"] > 0
+    assert all(torch.equal(a, b) for a, b in zip(frozen, actor_net.parameters(), strict=True))
+    same = [k for k, q in p.student.perception.named_parameters() if torch.equal(before[k], q)]
+    assert all("delta" in k for k in same), same  # all but delta_g0's head, which the frozen oracle does not read
+
+
+def test_rma_student_trains_resumes_and_evaluates(teacher, tmp_path):
+    out = unified.train(tiny(teacher, tmp_path / "ck", "collector.total_frames=80", "dagger_iters=5", *RMA))
+    assert out["iteration"] == 2
+    resumed = unified.build(tiny(teacher, tmp_path / "ck", "collector.total_frames=120", "dagger_iters=5",
+                                 "checkpoint.resume=auto", *RMA))
+    assert resumed.iteration == 2
+    state = load_checkpoint(tmp_path / "ck" / "last.pt")
+    for k, v in state["actor"].items():  # still the teacher's
+        assert torch.equal(v, resumed.student.actor.state_dict()[k]), k
+    cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
+                              "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
+                              "video=false", "logger.backend=csv"])
+    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 2
+
+
+@pytest.mark.parametrize("extra,match", [
+    (["student.perception=tcvit", "student.locomotion=oracle", "hlm.enabled=false"], "only rmah and rmab make"),
+    (["student.perception=rmab", "student.locomotion=oracle", "hlm.enabled=true"], "set hlm.enabled=false"),
+    (RMA + ["dagger_replay.capacity=100"], "set dagger_replay.capacity=0"),
+    (["student.locomotion=frozen"], "unknown student.locomotion 'frozen'"),
+])
+def test_bad_rma_settings_are_refused(teacher, tmp_path, extra, match):
+    with pytest.raises(ValueError, match=match):
+        unified.build(tiny(teacher, tmp_path, *extra))

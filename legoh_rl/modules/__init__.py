@@ -27,7 +27,11 @@ from legoh_rl.modules.goal_adaptation import (
     perception_output_spec,
 )
 from legoh_rl.modules.keys import AdaptationKeys, LocomotionKeys, OracleKeys, PerceptionKeys
-from legoh_rl.modules.locomotion import LocomotionNet, make_locomotion_actor
+from legoh_rl.modules.locomotion import (
+    LocomotionNet,
+    make_locomotion_actor,
+    make_oracle_locomotion_actor,
+)
 from legoh_rl.modules.masked_vae import MaskedVAE, MaskedVAEConfig, make_masked_vae_module
 from legoh_rl.modules.mlp import build_mlp, unit_normalize
 from legoh_rl.modules.oracle import (
@@ -75,6 +79,7 @@ __all__ = [
     "make_eph",
     "make_gaussian_actor",
     "make_locomotion_actor",
+    "make_oracle_locomotion_actor",
     "make_masked_vae_module",
     "make_memory_perception",
     "make_oracle_actor",

@@ -9,8 +9,10 @@ swap them by name through :func:`legoh_rl.modules.perception.make_perception`:
   depth cut off (normalised depth clipped at ``eph_depth_cutoff`` and rescaled to [0, 1]),
   then MLP + GRU + heads (the GRU predicts the latent and the goal yaws).
 * ``rmah`` (RMA-H): a feed-forward adapter from ``proprio_history`` and the current depth
-  frame (plus the GPS vectors) to the frozen oracle's latent (``z_uni`` estimates
-  ``z_tea``), with small goal heads.
+  frame (plus the GPS vectors) to the frozen oracle's latents (``z_uni`` estimates
+  ``z_tea``, ``priv_latent_uni`` its privileged latent), with small goal heads. As in the
+  paper, its locomotion is the oracle's actor, frozen
+  (:func:`~legoh_rl.modules.locomotion.make_oracle_locomotion_actor`).
 * ``rmab`` (RMA-B): the same adapter, blind (no depth).
 """
 
@@ -149,7 +151,11 @@ def _make_rma(cfg: PerceptionConfig, keys: PerceptionKeys | None, use_depth: boo
         in_keys.append(keys.depth)
     trunk = TensorDictModule(adapter, in_keys=in_keys, out_keys=[keys.features])
     heads = make_heads_module(keys.features, adapter.out_dim, cfg, keys)
-    return attach_output_spec(TensorDictSequential(trunk, heads), cfg, keys)
+    # RMA's adapter maps the sensors to the oracle's whole latent: the scandot latent (z_uni)
+    # and the privileged one, which a frozen oracle actor reads as the student's locomotion
+    priv = TensorDictModule(nn.Linear(adapter.out_dim, cfg.io.priv_latent_dim), in_keys=[keys.features],
+                            out_keys=[keys.priv_latent_uni])
+    return attach_output_spec(TensorDictSequential(trunk, heads, priv), cfg, keys, priv_latent=True)
 
 
 def make_rmah(cfg: PerceptionConfig, keys: PerceptionKeys | None = None) -> TensorDictSequential:

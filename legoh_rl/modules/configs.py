@@ -57,6 +57,8 @@ class PerceptionIO:
         latent_dim: size of ``z_uni``; must equal the oracle's scandot latent (32).
         gps_dim: size of ``goal_gps`` and ``waypoint_gps`` (2).
         history_len: T_h rows of ``proprio_history`` (RMA baselines).
+        priv_latent_dim: size of ``priv_latent_uni``, the RMA adapters' estimate of the
+            oracle's privileged latent; must equal the oracle's (20).
         num_waypoints: M, intermediate waypoints given to the network (the paper's D_rm):
             1 (default, LEGO-H) reads ``waypoint_gps`` (2,); 0 for a task without a
             waypoint: no ``waypoint_gps`` input, the key is never read, and the memory-input
@@ -72,12 +74,13 @@ class PerceptionIO:
     latent_dim: int = 32
     gps_dim: int = 2
     history_len: int = 10
+    priv_latent_dim: int = 20
     num_waypoints: int = 1
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
         for name in ("proprio_dim", "image_size", "num_frames", "num_goals", "latent_dim",
-                     "gps_dim", "history_len"):
+                     "gps_dim", "history_len", "priv_latent_dim"):
             _positive(f"PerceptionIO.{name}", getattr(self, name))
         if self.goal_channels < 0:
             raise ValueError(f"PerceptionIO.goal_channels must be >= 0, got {self.goal_channels}")

@@ -103,23 +103,26 @@ def make_heads_module(in_key, in_dim: int, cfg: PerceptionConfig, keys: Percepti
     )
 
 
-def perception_output_spec(cfg: PerceptionConfig, keys: PerceptionKeys | None = None) -> Composite:
+def perception_output_spec(cfg: PerceptionConfig, keys: PerceptionKeys | None = None,
+                           priv_latent: bool = False) -> Composite:
     """Output spec of every perception network: ``z_uni`` ``(latent_dim,)``, ``delta_g0``
-    ``(2,)``, ``goals_uni`` ``(num_goals, 2)`` (feature shapes, no batch dims)."""
+    ``(2,)``, ``goals_uni`` ``(num_goals, 2)`` and, with ``priv_latent`` (the RMA adapters),
+    ``priv_latent_uni`` ``(priv_latent_dim,)`` (feature shapes, no batch dims)."""
     keys = keys or PerceptionKeys()
     io = cfg.io
-    return Composite(
-        {
-            keys.z_uni: Unbounded(shape=(io.latent_dim,)),
-            keys.delta_g0: Unbounded(shape=(2,)),
-            keys.goals_uni: Unbounded(shape=(io.num_goals, 2)),
-        },
-        shape=(),
-    )
+    specs = {
+        keys.z_uni: Unbounded(shape=(io.latent_dim,)),
+        keys.delta_g0: Unbounded(shape=(2,)),
+        keys.goals_uni: Unbounded(shape=(io.num_goals, 2)),
+    }
+    if priv_latent:
+        specs[keys.priv_latent_uni] = Unbounded(shape=(io.priv_latent_dim,))
+    return Composite(specs, shape=())
 
 
 def attach_output_spec(
-    module: TensorDictModuleBase, cfg: PerceptionConfig, keys: PerceptionKeys | None = None
+    module: TensorDictModuleBase, cfg: PerceptionConfig, keys: PerceptionKeys | None = None,
+    priv_latent: bool = False,
 ) -> TensorDictModuleBase:
     """Set ``module.spec`` to :func:`perception_output_spec` and return ``module``.
 
@@ -128,7 +131,7 @@ def attach_output_spec(
     its held state, so a network built with non-default sizes needs no ``out_shapes``. It is
     a plain attribute: the module's ``state_dict`` is unchanged.
     """
-    module.spec = perception_output_spec(cfg, keys)
+    module.spec = perception_output_spec(cfg, keys, priv_latent)
     return module
 
 

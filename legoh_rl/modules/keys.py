@@ -27,7 +27,8 @@ class PerceptionKeys:
     Inputs (shapes without the batch): ``depth_goal_stack`` (T, 1+G, H, W), ``depth``
     (1, H, W), ``goal_gps`` (2,), ``waypoint_gps`` (2,), ``proprio`` (D,),
     ``proprio_history`` (T_h, D), ``is_init`` (1,) bool. Outputs: ``z_uni`` (latent,),
-    ``delta_g0`` (2,), ``goals_uni`` (N, 2). The remaining keys are intermediate features
+    ``delta_g0`` (2,), ``goals_uni`` (N, 2); the RMA adapters also ``priv_latent_uni``
+    (priv_latent,), their estimate of the oracle's privileged latent. The remaining keys are intermediate features
     and recurrent state (``hidden`` for GRUs; ``context`` / ``context_valid`` for the causal
     transformer's rolling window).
     """
@@ -48,6 +49,7 @@ class PerceptionKeys:
     hidden: NestedKey = "perception_hidden"
     context: NestedKey = "perception_context"
     context_valid: NestedKey = "perception_context_valid"
+    priv_latent_uni: NestedKey = "priv_latent_uni"
 
 
 @dataclass(frozen=True)
@@ -75,14 +77,17 @@ class OracleKeys:
 class LocomotionKeys:
     """Keys of the student locomotion actor.
 
-    Inputs: ``z_uni`` (latent,), ``proprio`` (D,), ``delta_g0`` (2,), ``goal_next`` (2,).
-    Outputs: ``loc``/``scale`` (A,), ``action`` (A,), ``action_log_prob`` ().
+    Inputs: ``z_uni`` (latent,), ``proprio`` (D,), ``delta_g0`` (2,), ``goal_next`` (2,); the
+    frozen oracle's actor (RMA) reads ``proprio``, ``z_uni``, ``priv_latent_uni`` (20,) and
+    ``goals_uni`` (N, 2) instead. Outputs: ``loc``/``scale`` (A,), ``action`` (A,), ``action_log_prob`` ().
     """
 
     z_uni: NestedKey = "z_uni"
     proprio: NestedKey = "proprio"
     delta_g0: NestedKey = "delta_g0"
     goal_next: NestedKey = "goal_next"
+    priv_latent_uni: NestedKey = "priv_latent_uni"
+    goals_uni: NestedKey = "goals_uni"
     loc: NestedKey = "loc"
     scale: NestedKey = "scale"
     action: NestedKey = "action"

@@ -3,6 +3,11 @@
 An MLP over ``(z_uni, proprio, delta_g0, goal_next)``, with the same diagonal-Gaussian head
 and state-independent std as the oracle actor (:mod:`legoh_rl.modules.distributions`), so
 its ``loc`` is directly comparable with the oracle's for action imitation.
+
+The RMA baselines (paper Sec. "Benchmark": "a frozen oracle policy with an adapter network
+to map [...] sensory data to oracle's latent space") use the oracle's own actor instead,
+frozen, reading the adapter's estimates in place of the privileged encoders' outputs and the
+expert goals (:func:`make_oracle_locomotion_actor`).
 """
 
 from __future__ import annotations
@@ -16,8 +21,9 @@ from legoh_rl.modules.configs import LocomotionConfig
 from legoh_rl.modules.distributions import GaussianHead, make_gaussian_actor
 from legoh_rl.modules.keys import LocomotionKeys
 from legoh_rl.modules.mlp import build_mlp
+from legoh_rl.modules.oracle import OracleActorNet
 
-__all__ = ["LocomotionNet", "make_locomotion_actor"]
+__all__ = ["LocomotionNet", "make_locomotion_actor", "make_oracle_locomotion_actor"]
 
 
 class LocomotionNet(nn.Module):
@@ -56,4 +62,26 @@ def make_locomotion_actor(
         out_keys=[keys.loc, keys.scale],
     )
     return make_gaussian_actor(net, cfg.num_actions, loc_key=keys.loc, scale_key=keys.scale,
+                               action_key=keys.action)
+
+
+def make_oracle_locomotion_actor(net: OracleActorNet, keys: LocomotionKeys | None = None) -> ProbabilisticActor:
+    """The oracle's actor as the student's locomotion module, frozen (RMA):
+    ``(proprio (*B, D), z_uni (*B, 32), priv_latent_uni (*B, 20), goals_uni (*B, N, 2))
+    -> loc, scale (*B, A) -> action``.
+
+    ``net`` (an :class:`~legoh_rl.modules.oracle.OracleActorNet`, typically a copy of a trained
+    oracle's ``networks.actor``) reads the student's estimates where the oracle read its
+    scandot latent ``z_tea``, its privileged latent and the expert goals; its parameters,
+    the std included, get ``requires_grad=False``, so an optimiser over the actor's parameters
+    leaves it as it is and gradients pass through it to the perception that feeds it.
+    IndependentNormal with ``return_log_prob=True`` (writes ``action_log_prob``).
+    """
+    keys = keys or LocomotionKeys()
+    net.requires_grad_(False)
+    module = TensorDictModule(
+        net, in_keys=[keys.proprio, keys.z_uni, keys.priv_latent_uni, keys.goals_uni],
+        out_keys=[keys.loc, keys.scale],
+    )
+    return make_gaussian_actor(module, net.head.mean.out_features, loc_key=keys.loc, scale_key=keys.scale,
                                action_key=keys.action)

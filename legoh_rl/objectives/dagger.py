@@ -34,7 +34,11 @@ class DAggerLoss(LossModule):
       latent dimension, as the paper's ``||.||^2``;
     * goals: SmoothL1 (``beta = smooth_l1_beta``) between ``G_tea`` and ``G_uni``
       (``(*B, N_goals, 2)``, (cos, sin) rows), **averaged** over the last two dimensions;
-    * action: SmoothL1 between ``a_tea`` and ``a_uni`` (``(*B, A)``), averaged over joints.
+    * action: SmoothL1 between ``a_tea`` and ``a_uni`` (``(*B, A)``), averaged over joints;
+    * privileged latent (not in Eq. 1; weight ``w_priv``, default 0: off): the squared L2 norm
+      of ``priv_latent_tea - priv_latent_uni`` (``(*B, P)``), summed like the latent term. RMA's
+      adapter regresses the oracle's whole latent, the privileged part included, because the
+      frozen oracle actor it feeds reads both.
 
     Each term is then averaged over the valid samples (``reduction="mean"``): samples whose
     padding mask (key ``mask``, default ``("collector", "mask")``, torchrl's valid-step mask;
@@ -59,21 +63,24 @@ class DAggerLoss(LossModule):
     Keyword Args:
         w1, w2, w3: weights of the latent, goal and action terms (paper: 1, 1, 1). A term with
             weight 0 is skipped: its keys are not read and its entries are not written.
+        w_priv: weight of the privileged-latent term (default 0: skipped).
         smooth_l1_beta: the SmoothL1 transition point (PyTorch ``beta``; default 1.0).
         reduction: ``"mean"`` (default), ``"sum"`` or ``"none"`` (per-sample ``(*B,)``
             tensors, masked samples zeroed).
 
     Input keys (``set_keys`` names -> defaults): ``z_tea`` -> ``"z_tea"``, ``z_uni`` ->
     ``"z_uni"``, ``goals_tea`` -> ``"goals_tea"``, ``goals_uni`` -> ``"goals_uni"``,
-    ``action_tea`` -> ``"action_tea"``, ``action_uni`` -> ``"loc"``, ``mask`` ->
+    ``action_tea`` -> ``"action_tea"``, ``action_uni`` -> ``"loc"``, ``priv_latent_tea`` ->
+    ``"priv_latent_tea"``, ``priv_latent_uni`` -> ``"priv_latent_uni"``, ``mask`` ->
     ``("collector", "mask")`` (:data:`~legoh_rl.objectives.VALID_MASK_KEY`, written by torchrl's
     ``split_trajectories`` / ``SliceSampler(pad_output=True)``; e.g. ``set_keys(mask="valid")``
     for another key).
 
     Returns:
         A TensorDict with ``loss_im_latent`` (``w1 *`` latent term), ``loss_im_goals``,
-        ``loss_im_action`` and the unweighted, detached diagnostics ``im_latent``,
-        ``im_goals``, ``im_action``.
+        ``loss_im_action`` (and ``loss_im_priv_latent`` when ``w_priv > 0``) and the
+        unweighted, detached diagnostics ``im_latent``, ``im_goals``, ``im_action``
+        (``im_priv_latent``).
     """
 
     @dataclass
@@ -86,6 +93,8 @@ class DAggerLoss(LossModule):
         goals_uni: NestedKey = "goals_uni"
         action_tea: NestedKey = "action_tea"
         action_uni: NestedKey = "loc"
+        priv_latent_tea: NestedKey = "priv_latent_tea"
+        priv_latent_uni: NestedKey = "priv_latent_uni"
         mask: NestedKey = VALID_MASK_KEY
 
     default_keys = _AcceptedKeys
@@ -98,6 +107,7 @@ class DAggerLoss(LossModule):
         w1: float = 1.0,
         w2: float = 1.0,
         w3: float = 1.0,
+        w_priv: float = 0.0,
         smooth_l1_beta: float = 1.0,
         reduction: str = "mean",
     ) -> None:
@@ -106,6 +116,7 @@ class DAggerLoss(LossModule):
         self.w1 = check_weight("w1", w1)
         self.w2 = check_weight("w2", w2)
         self.w3 = check_weight("w3", w3)
+        self.w_priv = check_weight("w_priv", w_priv)
         if not smooth_l1_beta > 0:
             raise ValueError(f"smooth_l1_beta must be > 0, got {smooth_l1_beta!r}")
         self.smooth_l1_beta = float(smooth_l1_beta)
@@ -124,6 +135,7 @@ class DAggerLoss(LossModule):
             ("latent", self.w1, k.z_tea, k.z_uni),
             ("goals", self.w2, k.goals_tea, k.goals_uni),
             ("action", self.w3, k.action_tea, k.action_uni),
+            ("priv_latent", self.w_priv, k.priv_latent_tea, k.priv_latent_uni),
         ]
         return [t for t in terms if t[1] > 0]
 
@@ -147,7 +159,7 @@ class DAggerLoss(LossModule):
             tea = get_entry(tensordict, tea_key, f"DAggerLoss ({name} term, teacher)").detach()
             uni = get_entry(student, uni_key, f"DAggerLoss ({name} term, student)")
             check_same_shape(f"teacher {tea_key!r}", tea, f"student {uni_key!r}", uni)
-            if name == "latent":
+            if name in ("latent", "priv_latent"):
                 if tea.ndim < 1:
                     raise ValueError(f"latents must have shape (*B, Z), got {tuple(tea.shape)}")
                 per_sample = (tea - uni).pow(2).sum(-1)
@@ -172,5 +184,5 @@ class DAggerLoss(LossModule):
         return TensorDict(out, batch_size=[])
 
     def extra_repr(self) -> str:
-        return f"w1={self.w1}, w2={self.w2}, w3={self.w3}, beta={self.smooth_l1_beta}"
+        return f"w1={self.w1}, w2={self.w2}, w3={self.w3}, w_priv={self.w_priv}, beta={self.smooth_l1_beta}"
 

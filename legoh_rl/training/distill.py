@@ -56,9 +56,11 @@ class Teacher:
 
     @torch.no_grad()
     def label(self, td: TensorDictBase) -> TensorDictBase:
-        """Write ``z_tea``, ``goals_tea``, ``action_tea`` for every step of ``td`` (any batch)."""
+        """Write ``z_tea`` (*B, 32), ``priv_latent_tea`` (*B, 20), ``goals_tea`` (*B, N, 2) and
+        ``action_tea`` (*B, A) for every step of ``td`` (any batch ``*B``)."""
         out = self._net(td.select(*self._net.in_keys).copy())
         td.set("z_tea", out["z_tea"])
+        td.set("priv_latent_tea", out["priv_latent"])
         td.set("action_tea", out["loc"])
         td.set("goals_tea", td.get("expert_goals"))
         return td

@@ -55,10 +55,9 @@ from tensordict.nn import ProbabilisticTensorDictModule, TensorDictModule, Tenso
 from torch import nn
 from torchrl.modules import GRUModule
 
-from legoh_rl.modules.configs import LocomotionConfig, PerceptionConfig, perception_config
-from legoh_rl.modules.locomotion import make_locomotion_actor
+from legoh_rl.modules.configs import PerceptionConfig
 from legoh_rl.modules.oracle import make_oracle_actor
-from legoh_rl.modules.perception import make_perception
+from legoh_rl.training.student import hold_keys, student_networks
 from legoh_rl.transforms import PerceptionHold
 
 __all__ = [
@@ -202,12 +201,9 @@ def student_modules(meta: Mapping) -> tuple[nn.Module, nn.Module, PerceptionConf
     block, untrained (sizes as :func:`~legoh_rl.training.student.make_student` gives them for
     the env the meta block describes)."""
     layout = meta["obs_layout"]
-    proprio_dim = int(layout["proprio"][-1])
-    pcfg = perception_config(meta["preset"], proprio_dim, image_size=int(layout["depth"][-1]),
-                             num_goals=int(layout["expert_goals"][-2]))
-    perception = make_perception(meta["perception"], pcfg)
-    actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=int(meta["num_actions"])))
-    return perception, actor, pcfg
+    return student_networks(meta["perception"], meta["preset"], int(layout["proprio"][-1]), int(layout["depth"][-1]),
+                            int(layout["expert_goals"][-2]), int(meta["num_actions"]),
+                            oracle_config=meta.get("oracle_config"))
 
 
 def student_graphs(state: Mapping) -> tuple[TensorDictGraph, TensorDictGraph, PerceptionConfig]:
@@ -215,7 +211,7 @@ def student_graphs(state: Mapping) -> tuple[TensorDictGraph, TensorDictGraph, Pe
     perception, actor, pcfg = student_modules(state["meta"])
     perception.load_state_dict(state["perception"])
     actor.load_state_dict(state["actor"])
-    hold = PerceptionHold(perception)  # the outputs the locomotion module is given
+    hold = PerceptionHold(perception, hold_keys=hold_keys(perception))  # what the locomotion module is given
     outs = list(hold.hold_keys) + [("next", k) for k in hold.recurrent_keys]
     return TensorDictGraph(perception, outs).eval(), TensorDictGraph(actor, ["loc"]).eval(), pcfg
 
@@ -231,6 +227,7 @@ def feature_shapes(meta: Mapping, pcfg: PerceptionConfig | None) -> dict:
             "depth_goal_stack": (io.num_frames, io.stack_channels, io.image_size, io.image_size),
             "goal_gps": (io.gps_dim,), "waypoint_gps": (io.gps_dim,), "z_uni": (io.latent_dim,),
             "delta_g0": (2,), "goal_next": (2,), "proprio_history": (io.history_len, io.proprio_dim),
+            "priv_latent_uni": (io.priv_latent_dim,), "goals_uni": (io.num_goals, 2),
             "perception_hidden": (pcfg.gru_layers, pcfg.gru_hidden),
         })
     return shapes

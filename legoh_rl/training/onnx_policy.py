@@ -10,7 +10,8 @@ back, so an exported policy runs in the same benchmark loop as the torch checkpo
   that tick (10 Hz, or an episode start) and holds its outputs in between, exactly as with the
   torch module; the GRU state ``perception_hidden`` ``(B, L, Hg)`` is carried in the
   TensorDict (a primer) and zeroed where ``is_init``; ``OnnxModule(OUT.locomotion.onnx)`` then
-  maps ``z_uni, proprio, delta_g0, goal_next`` to ``action`` at every step.
+  maps ``z_uni, proprio, delta_g0, goal_next`` (a frozen-oracle RMA student: ``proprio, z_uni,
+  priv_latent_uni, goals_uni``) to ``action`` at every step.
 
 ``python recipes/evaluate.py checkpoint=OUT.onnx`` evaluates either (:func:`load_onnx_policy`):
 ``OUT.onnx`` is the oracle's file, or names the student's pair ``OUT.perception.onnx`` +
@@ -143,6 +144,10 @@ class OnnxModule(TensorDictModuleBase):
         self.state_keys = {n: k for n, k in self.inputs if n in self.info.get("recurrent", {})}
         self.in_keys = [k for _, k in self.inputs] + (["is_init"] if self.state_keys else [])
         self.out_keys = [k for _, k in self.outputs]
+        names = {n: k for n, k in self.outputs}
+        #: per-sample shape of each output, by TensorDict key (the graph's batch axis dropped)
+        self.output_shapes = {names[o.name]: tuple(int(d) for d in o.shape[1:])
+                              for o in self.session.get_outputs() if o.name in names}
         if self.state_keys:  # found by torchrl's get_primers_from_module
             self.make_tensordict_primer = self._primer
 
@@ -196,7 +201,7 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
     from legoh_rl.training.builders import gait_kwargs, policy_meta
     from legoh_rl.training.checkpoint import check_meta
     from legoh_rl.training.policies import eval_env
-    from legoh_rl.training.student import StudentPolicy, student_env
+    from legoh_rl.training.student import StudentPolicy, hold_keys, student_env
     from legoh_rl.transforms import PerceptionHold
 
     files = resolve_onnx(checkpoint)
@@ -216,7 +221,9 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
                     **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]},
                files["perception"])
-    hold = PerceptionHold(perception)
+    keys = hold_keys(perception)  # a frozen-oracle (RMA) student's perception also gives priv_latent_uni
+    hold = PerceptionHold(perception, hold_keys=keys,
+                          out_shapes={k: perception.output_shapes[k] for k in keys})
     history = perception.feature_shapes.get("proprio_history", (10,))[0]
     student = StudentPolicy(perception, hold, locomotion, history)
     return student_env(base, student), student.policy, f"student ({meta['perception']}, onnx)"

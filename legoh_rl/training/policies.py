@@ -62,7 +62,7 @@ def load_student(state: dict, protocol, variants: int, seed: int, num_threads=No
     base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails, device=device,
                     physics=physics, **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
-    student = make_student(base, meta["perception"], meta["preset"])
+    student = make_student(base, meta["perception"], meta["preset"], oracle_config=meta.get("oracle_config"))
     student.perception.load_state_dict(state["perception"])
     student.actor.load_state_dict(state["actor"])
     student.policy.to(device)

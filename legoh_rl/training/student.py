@@ -12,18 +12,27 @@ The student acts at 50 Hz but perceives at 10 Hz:
 from __future__ import annotations
 
 import warnings
+from collections.abc import Mapping
 
 from tensordict.nn import TensorDictSequential
 from torchrl.envs import CatFrames, Compose, InitTracker, TransformedEnv, UnsqueezeTransform
 from torchrl.modules.utils import get_primers_from_module
 
 from legoh_rl.envs import HikingEnv
-from legoh_rl.modules.configs import LocomotionConfig, perception_config
-from legoh_rl.modules.locomotion import make_locomotion_actor
+from legoh_rl.modules.configs import LocomotionConfig, OracleConfig, perception_config
+from legoh_rl.modules.locomotion import make_locomotion_actor, make_oracle_locomotion_actor
+from legoh_rl.modules.oracle import OracleActorNet
 from legoh_rl.modules.perception import make_perception
 from legoh_rl.transforms import DepthHistory, GoalTiling, PerceptionHold
 
-__all__ = ["StudentPolicy", "make_student", "student_env"]
+__all__ = ["LOCOMOTIONS", "StudentPolicy", "make_student", "student_env", "student_networks"]
+
+#: the student's locomotion module: its own MLP trained by the recipe (``learned``, LEGO-H), or
+#: the teacher's actor, frozen, fed the perception's estimates of its latents (``oracle``, RMA)
+LOCOMOTIONS = ("learned", "oracle")
+#: what each perception's outputs must include for a locomotion module
+LOCOMOTION_INPUTS = {"learned": ("z_uni", "delta_g0", "goals_uni"),
+                     "oracle": ("z_uni", "priv_latent_uni", "goals_uni")}
 
 
 class StudentPolicy:
@@ -38,8 +47,54 @@ class StudentPolicy:
         self.policy = TensorDictSequential(hold, actor)
 
 
+def student_networks(perception: str, preset: str, proprio_dim: int, image_size: int, num_goals: int,
+                     num_actions: int, init_std: float = 1.0, oracle_config: Mapping | None = None):
+    """``(perception, locomotion actor, perception config)`` of a student, untrained.
+
+    Args:
+        perception: a name of :func:`legoh_rl.modules.perception.make_perception`.
+        preset: ``"cpu"`` (64x64) or ``"paper"`` (128x128).
+        proprio_dim, image_size, num_goals, num_actions: the env's sizes (D, H = W, N, A).
+        init_std: initial action std of a learned locomotion actor.
+        oracle_config: ``None`` for the student's own locomotion MLP (``learned``); an oracle's
+            :class:`~legoh_rl.modules.configs.OracleConfig` fields for its actor, frozen
+            (``oracle``, RMA), whose weights the caller loads. It needs a perception that
+            estimates the privileged latent (``rmah``, ``rmab``).
+
+    Raises:
+        ValueError: ``oracle_config`` with a perception that does not write
+            ``priv_latent_uni``, or an oracle whose sizes differ from the student's.
+    """
+    pcfg = perception_config(preset, proprio_dim, image_size=image_size, num_goals=num_goals)
+    perc = make_perception(perception, pcfg)
+    if oracle_config is None:
+        actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=num_actions,
+                                                       init_std=init_std))
+        return perc, actor, pcfg
+    missing = [k for k in LOCOMOTION_INPUTS["oracle"] if k not in perc.out_keys]
+    if missing:
+        raise ValueError(f"student.locomotion=oracle (the teacher's actor, frozen) reads {missing}, which "
+                         f"perception {perception!r} does not estimate: use rmah or rmab")
+    ocfg = OracleConfig(**oracle_config)
+    want = {"proprio_dim": proprio_dim, "num_actions": num_actions, "num_goals": num_goals,
+            "latent_dim": pcfg.io.latent_dim, "priv_latent_dim": pcfg.io.priv_latent_dim}
+    have = {"proprio_dim": ocfg.proprio_dim, "num_actions": ocfg.num_actions, "num_goals": ocfg.num_goals,
+            "latent_dim": ocfg.latent_dim, "priv_latent_dim": ocfg.priv_latent_dim}
+    bad = {k: (have[k], want[k]) for k in want if have[k] != want[k]}
+    if bad:
+        raise ValueError(f"the oracle's actor cannot be the student's locomotion: sizes (oracle, student) {bad}")
+    return perc, make_oracle_locomotion_actor(OracleActorNet(ocfg)), pcfg
+
+
+def hold_keys(perception) -> tuple[str, ...]:
+    """The outputs :class:`PerceptionHold` keeps between perception ticks for a perception module
+    (torch or exported): ``z_uni``, ``delta_g0``, ``goals_uni``, and ``priv_latent_uni`` when the
+    module writes it (the RMA adapters)."""
+    return ("z_uni", "delta_g0", "goals_uni") + (("priv_latent_uni",) if "priv_latent_uni" in perception.out_keys else ())
+
+
 def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
-                 init_std: float = 1.0) -> StudentPolicy:
+                 init_std: float = 1.0, oracle_config: Mapping | None = None) -> StudentPolicy:
     """Build the student sized for ``env`` (student or eval mode, depth on).
 
     Args:
@@ -49,17 +104,15 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
         preset: ``"cpu"`` (64x64) or ``"paper"`` (128x128); must match the env's depth size.
         init_std: initial action std of the locomotion actor (the unified recipe passes its
             teacher's).
+        oracle_config: the teacher's ``OracleConfig`` fields for a frozen-oracle locomotion
+            (RMA, see :func:`student_networks`); ``None``: the student's own MLP.
     """
     if not env.cfg.depth_enabled:
         raise ValueError("the student needs the depth camera: build the env in 'student' or 'eval' mode")
     spec = env.observation_spec
-    proprio_dim = spec["proprio"].shape[-1]
-    size = spec["depth"].shape[-1]
-    pcfg = perception_config(preset, proprio_dim, image_size=size, num_goals=spec["expert_goals"].shape[-2])
-    perc = make_perception(perception, pcfg)
-    hold = PerceptionHold(perc)
-    actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=env.A, init_std=init_std))
-    return StudentPolicy(perc, hold, actor, pcfg.io.history_len)
+    perc, actor, pcfg = student_networks(perception, preset, spec["proprio"].shape[-1], spec["depth"].shape[-1],
+                                         spec["expert_goals"].shape[-2], env.A, init_std, oracle_config)
+    return StudentPolicy(perc, PerceptionHold(perc, hold_keys=hold_keys(perc)), actor, pcfg.io.history_len)
 
 
 def student_env(env: HikingEnv, student: StudentPolicy) -> TransformedEnv:
