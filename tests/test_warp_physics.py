@@ -35,6 +35,19 @@ import unified  # noqa: E402
 
 N = 4
 OFF = DomainRandConfig.off()
+wp, _ = import_mujoco_warp()
+
+
+@wp.kernel
+def _add_one(x: wp.array(dtype=float)):
+    x[wp.tid()] += 1.0
+
+
+@wp.kernel
+def _add_one_tiled(x: wp.array(dtype=float)):
+    _, lane = wp.tid()
+    if lane < x.shape[0]:
+        x[lane] += 1.0
 
 
 def cfg_of(name, overrides):
@@ -326,6 +339,39 @@ def test_precompile_loads_every_module_before_the_first_step(pair, monkeypatch):
     assert off.precompile([off._launch_control_step]) == []
     with pytest.raises(ValueError, match="compile_workers must be >= 0, got -1"):
         WarpWorlds(w.built, 1, compile_workers=-1)
+
+
+def test_recorded_block_sizes_are_the_ones_the_launches_ask_for(pair):
+    """A tiled launch asks for a block size that Warp's CPU device turns into 1; the recording
+    keeps what was asked (a CUDA launch uses it, and it is part of the module's cache id)."""
+    w = pair[1].worlds
+    launched = {module.name: blocks for module, blocks in w.record_launches(w.compile_calls).values()}
+    nxn = [blocks for name, blocks in launched.items() if "nxn_broadphase" in name]
+    assert nxn == [{w.m.block_dim.nxn_broadphase}] and w.m.block_dim.nxn_broadphase == 128
+    assert all(b is None or b >= 32 for blocks in launched.values() for b in blocks)
+
+
+def test_compile_ahead_writes_a_gpu_kernel_cache_without_a_gpu(pair, tmp_path):
+    """NVRTC compiles for sm_90 here: each module launched, per block size a CUDA launch would
+    use (256 when none is asked), lands where Warp's cache lookup looks, as CUBIN and PTX."""
+    w = pair[1].worlds
+    wp = w.wp
+    x = wp.zeros(8, dtype=float, device="cpu")
+    calls = [lambda: wp.launch(_add_one, dim=8, inputs=[x]),
+             lambda: wp.launch_tiled(_add_one_tiled, dim=[1], inputs=[x], block_dim=64)]
+    paths = w.compile_ahead(tmp_path / "cache", arch=90, calls=calls, workers=2)
+    module = _add_one.module
+    want = set()
+    for block in (256, 64):
+        ident = module.get_module_identifier(block_dim=block)
+        want |= {tmp_path / "cache" / ident / f"{ident}.sm90.{fmt}" for fmt in ("cubin", "ptx")}
+        assert list((tmp_path / "cache" / ident).glob("*.meta")), ident
+    assert set(paths) == want and all(p.stat().st_size > 0 for p in paths)
+    assert x.numpy().sum() == 0.0  # nothing ran
+    with pytest.raises(ValueError, match="arch 12: this Warp's NVRTC compiles for"):
+        w.compile_ahead(tmp_path / "cache", arch=12, calls=calls)
+    with pytest.raises(ValueError, match="formats must be some of"):
+        w.compile_ahead(tmp_path / "cache", formats=("sass",), calls=calls)
 
 
 def test_cuda_graph_captures_on_the_second_step_and_replays_after(pair, monkeypatch):

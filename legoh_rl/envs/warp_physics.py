@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -148,6 +150,8 @@ class WarpWorlds(Worlds):
         self.compile_workers = (os.cpu_count() or 1) if compile_workers is None else int(compile_workers)
         if self.compile_workers < 0:
             raise ValueError(f"compile_workers must be >= 0, got {compile_workers!r}")
+        #: every call handed to :meth:`precompile` (what :meth:`compile_ahead` compiles)
+        self.compile_calls: list = []
         with self.wp.ScopedDevice(self.device):
             no_worlds = self.wp.zeros(N, dtype=bool)  # reset_data's kernels for a world mask, as resets call it
         self.precompile([self._launch_control_step, lambda: self.mjw.reset_data(self.m, self.d, reset=no_worlds),
@@ -184,15 +188,70 @@ class WarpWorlds(Worlds):
             self._time[rows] = t
 
     # ------------------------------------------------------------------ compilation
+    def record_launches(self, calls) -> dict[int, tuple[object, set]]:
+        """The Warp modules that ``calls`` launch, found without running anything on the device.
+
+        Each call runs once with Warp's ``launch`` recording the kernel it is given (the overload
+        a generic kernel would get for its arguments) instead of launching it; a device-side loop
+        runs its body once and a device-side if both branches, since with nothing running their
+        conditions never change. The state is untouched.
+
+        Args:
+            calls: functions of no argument that launch Warp kernels on :attr:`device`.
+
+        Returns:
+            ``{id(module): (module, block sizes)}``: each module with the ``block_dim`` values its
+            launches asked for (``None``: Warp's default for the device).
+
+        Raises:
+            whatever a call raises while recording (Warp's own functions are restored first).
+        """
+        wp = self.wp
+        context = wp._src.context
+        launched: dict[int, tuple[object, set]] = {}
+
+        def launch(kernel, dim, inputs=(), outputs=(), adj_inputs=(), adj_outputs=(), device=None, stream=None,
+                   adjoint=False, record_tape=True, record_cmd=False, max_blocks=0, block_dim=None):
+            if kernel.is_generic:  # the overload a launch would add for these argument types
+                kernel = kernel._add_normalized_overload(kernel.infer_argument_types([*inputs, *outputs]))
+            launched.setdefault(id(kernel.module), (kernel.module, set()))[1].add(block_dim)
+
+        def launch_tiled(*args, **kwargs):  # the block size as asked (Warp's resolves it for the device)
+            return launch(*args, **kwargs)
+
+        def capture_while(condition, while_body, stream=None, **kwargs):
+            while_body(**kwargs)
+
+        def capture_if(condition, on_true=None, on_false=None, stream=None, **kwargs):
+            for branch in (on_true, on_false):
+                if callable(branch):
+                    branch(**kwargs)
+
+        stand_ins = {"launch": launch, "launch_tiled": launch_tiled, "capture_while": capture_while,
+                     "capture_if": capture_if}
+        originals = {name: getattr(context, name) for name in stand_ins}
+        try:
+            for name, fn in stand_ins.items():
+                setattr(context, name, fn)
+                setattr(wp, name, fn)
+            with wp.ScopedDevice(self.device):
+                for call in calls:
+                    call()
+        finally:
+            for name, fn in originals.items():
+                setattr(context, name, fn)
+                setattr(wp, name, fn)
+        return launched
+
     def precompile(self, calls: list) -> list[str]:
         """Compile, ``compile_workers`` at a time, the Warp modules that ``calls`` launch.
 
         Warp compiles a module at its first launch, so a first step compiles MuJoCo Warp's
         modules one after another; the collision kernels MuJoCo Warp builds for this model's geom
-        pairs take tens of seconds each on a GPU (docs/gpu_physics.md, "First compile"). Here each
-        call runs once with Warp's ``launch`` recording the kernels instead of launching them
-        (nothing runs on the device, so the state is untouched), then ``warp.force_load``
-        compiles the recorded modules in parallel into Warp's kernel cache.
+        pairs take tens of seconds each on a GPU (docs/gpu_physics.md, "First compile"). Here
+        :meth:`record_launches` finds the modules, then ``warp.force_load`` compiles them in
+        parallel into Warp's kernel cache. The calls are also kept in :attr:`compile_calls`
+        for :meth:`compile_ahead`.
 
         Args:
             calls: functions of no argument that launch Warp kernels on :attr:`device`.
@@ -202,50 +261,21 @@ class WarpWorlds(Worlds):
             ``compile_workers=0``, or when the recording failed; a failed recording or compile
             warns, and what is not loaded compiles at its first launch).
         """
+        self.compile_calls.extend(calls)
         if self.compile_workers == 0:
             return []
         wp = self.wp
-        context = wp._src.context
-        wanted: dict[tuple[int, int], object] = {}
-
-        def launch(kernel, dim, inputs=(), outputs=(), adj_inputs=(), adj_outputs=(), device=None, stream=None,
-                   adjoint=False, record_tape=True, record_cmd=False, max_blocks=0, block_dim=None):
-            dev = stream.device if stream is not None else wp.get_device(device)
-            block = context._resolve_launch_block_dim(dev, block_dim)
-            if kernel.is_generic:  # the overload a launch would add for these argument types
-                kernel = kernel._add_normalized_overload(kernel.infer_argument_types([*inputs, *outputs]))
-            wanted[id(kernel.module), block] = kernel.module
-
-        # with no kernel running, a device-side loop condition never changes: each body once,
-        # and both branches of a device-side if
-        def capture_while(condition, while_body, stream=None, **kwargs):
-            while_body(**kwargs)
-
-        def capture_if(condition, on_true=None, on_false=None, stream=None, **kwargs):
-            for branch in (on_true, on_false):
-                if callable(branch):
-                    branch(**kwargs)
-
-        stand_ins = {"launch": launch, "capture_while": capture_while, "capture_if": capture_if}
-        originals = {name: getattr(context, name) for name in stand_ins}
         try:
-            for name, fn in stand_ins.items():
-                setattr(context, name, fn)
-                setattr(wp, name, fn)
-            with wp.ScopedDevice(self.device):
-                for call in calls:
-                    call()
+            launched = self.record_launches(calls)
         except Exception as err:  # noqa: BLE001 - an optimisation only: the first launches compile instead
             warnings.warn(f"WarpWorlds.precompile: recording the launches failed ({type(err).__name__}: {err}); "
                           "modules compile at their first launch", stacklevel=2)
             return []
-        finally:
-            for name, fn in originals.items():
-                setattr(context, name, fn)
-                setattr(wp, name, fn)
+        device = wp.get_device(self.device)
         by_block: dict[int, list] = {}
-        for (_, block), module in wanted.items():
-            by_block.setdefault(block, []).append(module)
+        for module, blocks in launched.values():
+            for block in {wp._src.context._resolve_launch_block_dim(device, b) for b in blocks}:
+                by_block.setdefault(block, []).append(module)
         try:
             for block, modules in by_block.items():
                 wp.force_load(device=self.device, modules=modules, block_dim=block,
@@ -253,7 +283,67 @@ class WarpWorlds(Worlds):
         except Exception as err:  # noqa: BLE001 - what did not load here compiles at its first launch
             warnings.warn(f"WarpWorlds.precompile: compiling the recorded modules failed ({type(err).__name__}: "
                           f"{err}); the rest compile at their first launch", stacklevel=2)
-        return sorted({m.name for m in wanted.values()})
+        return sorted({m.name for m, _ in launched.values()})
+
+    def compile_ahead(self, cache_dir: str | os.PathLike, arch: int = 90, formats: tuple[str, ...] = ("cubin", "ptx"),
+                      workers: int | None = None, calls: list | None = None) -> list[Path]:
+        """Compile this simulation's Warp modules for a CUDA architecture, on any machine.
+
+        Warp's NVRTC compiles CUDA code without a GPU or driver, so the modules a GPU run would
+        compile at its start (:meth:`record_launches` over :attr:`compile_calls`: the control
+        step, resets, ``forward``, ``set_const`` and the depth camera's rays) can be compiled
+        here, with the block sizes a CUDA launch would use (``block_dim`` or Warp's 256), and
+        written in Warp's kernel-cache layout (``<cache_dir>/<module id>/<module id>.sm<arch>
+        .cubin`` or ``.ptx``, and its ``.meta``). A GPU process whose Warp kernel cache is
+        ``cache_dir`` (``WARP_CACHE_PATH=<cache_dir>``) then loads them instead of compiling.
+        A module's id hashes its code and options, not the device; the model's own kernels
+        (its geom pairs' collision kernels) need the same robot and terrain as the run. Kernels
+        that only a CUDA device launches (MuJoCo Warp's conditional graph nodes) are not
+        recorded here and compile on the GPU as before.
+
+        Args:
+            cache_dir: the kernel cache to write (created; existing entries are kept).
+            arch: the CUDA compute capability, e.g. 90 for H100 and H200, 80 for A100.
+            formats: ``cubin`` (what Warp loads when the driver is older than its toolkit) and
+                ``ptx`` (what it loads otherwise).
+            workers: modules compiled at once; ``None``: :attr:`compile_workers` or one per CPU.
+            calls: the calls whose modules to compile; ``None``: :attr:`compile_calls`.
+
+        Returns:
+            the files written (binaries only), one per module, block size and format.
+
+        Raises:
+            ValueError: an ``arch`` this Warp's NVRTC cannot compile for, or an unknown format.
+        """
+        wp = self.wp
+        wp.init()
+        supported = sorted(wp._src.context.runtime.nvrtc_supported_archs or ())
+        if int(arch) not in supported:
+            raise ValueError(f"arch {arch!r}: this Warp's NVRTC compiles for {supported}")
+        bad = [f for f in formats if f not in ("cubin", "ptx")]
+        if bad or not formats:
+            raise ValueError(f"formats must be some of ('cubin', 'ptx'), got {formats!r}")
+        launched = self.record_launches(self.compile_calls if calls is None else calls)
+        root = Path(cache_dir)
+        root.mkdir(parents=True, exist_ok=True)
+
+        def build(module, blocks) -> list[Path]:
+            out, default = [], module.options["block_dim"]
+            try:  # one module per thread: its default block size is set for each variant in turn
+                for block in sorted({256 if b is None or b <= 0 else int(b) for b in blocks}):
+                    module.options["block_dim"] = block
+                    module_dir = root / module.get_module_identifier(block_dim=block)
+                    for fmt in formats:
+                        out += wp.compile_aot_module(module, arch=int(arch), module_dir=module_dir,
+                                                     use_ptx=fmt == "ptx")
+            finally:
+                module.options["block_dim"] = default
+            return out
+
+        n = workers or self.compile_workers or (os.cpu_count() or 1)
+        with ThreadPoolExecutor(max_workers=max(1, min(n, len(launched)))) as pool:
+            done = pool.map(lambda item: build(*item), launched.values())
+            return [Path(p) for paths in done for p in paths]
 
     # ------------------------------------------------------------------ state
     @property
