@@ -309,3 +309,19 @@ def test_rma_student_trains_resumes_and_evaluates(teacher, tmp_path):
 def test_bad_rma_settings_are_refused(teacher, tmp_path, extra, match):
     with pytest.raises(ValueError, match=match):
         unified.build(tiny(teacher, tmp_path, *extra))
+
+
+def test_a_blind_rma_b_student_trains_and_evaluates_without_the_camera(teacher, tmp_path):
+    """RMA-B reads no depth: its env renders none (env.depth=false), its checkpoint's layout has no
+    depth, and its evaluation builds a blind env; a perception that reads depth is refused one."""
+    blind = ["student.perception=rmab", "student.locomotion=oracle", "hlm.enabled=false", "env.depth=false"]
+    p = unified.build(tiny(teacher, tmp_path / "ck", "collector.total_frames=40", *blind))
+    assert not p.env.cfg.depth_enabled and "depth" not in p.collect_env.observation_spec.keys()
+    assert "depth" not in p.meta["obs_layout"]
+    unified.train(tiny(teacher, tmp_path / "ck", "collector.total_frames=40", *blind))
+    cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
+                              "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
+                              "video=false", "logger.backend=csv"])
+    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 2
+    with pytest.raises(ValueError, match="perception 'rmah' reads depth"):
+        unified.build(tiny(teacher, tmp_path / "other", *RMA, "env.depth=false"))

@@ -78,6 +78,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         category_weights=value("category_weights", lambda v: tuple(float(w) for w in v)),
         pit_depths=value("pit_depths", lambda v: tuple(float(d) for d in v)),
         physics=value("physics", str),
+        depth=None if cfg.get("depth") is None else bool(cfg["depth"]),  # None: the mode's (on but for the oracle)
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
         **{name: value(name, int) for name in ("variants", "seed", "feet_edge_from_level")},
         **{name: value(name, float) for name in ("episode_length_s", "cmd_speed", "gait_period", "gait_stance",
@@ -130,7 +131,8 @@ def policy_meta(env: HikingEnv, kind: str) -> dict:
     feedforward gain when the clock drives the PD targets (older checkpoints, made without them,
     carry no such fields)."""
     spec = env.observation_spec
-    keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" else ())
+    # a student's depth size (absent for a blind student, trained and evaluated without the camera)
+    keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" and "depth" in spec.keys() else ())
     layout = {k: tuple(spec[k].shape[1:]) for k in keys}
     meta = {"robot": env.robot.name, "num_actions": env.A, "obs_layout": layout, "kind": kind}
     if env.cfg.gait_period:

@@ -22,7 +22,8 @@ __all__ = ["RECIPE_ENV_KEYS", "env_defaults", "register_configs"]
 #: there (``false``: off), not the nested configs.
 RECIPE_ENV_KEYS = ("robot", "num_envs", "categories", "category_weights", "levels", "variants", "num_threads", "physics", "seed",
                    "domain_rand", "curriculum", "episode_length_s", "cmd_speed", "gait_period", "gait_stance",
-                   "gait_amplitude", "gait_feedforward", "feet_edge_from_level", "pit_depths", "reward_overrides")
+                   "gait_amplitude", "gait_feedforward", "feet_edge_from_level", "pit_depths", "reward_overrides",
+                   "depth")
 _SWITCHES = ("domain_rand", "curriculum")
 
 

@@ -201,7 +201,8 @@ def student_modules(meta: Mapping) -> tuple[nn.Module, nn.Module, PerceptionConf
     block, untrained (sizes as :func:`~legoh_rl.training.student.make_student` gives them for
     the env the meta block describes)."""
     layout = meta["obs_layout"]
-    return student_networks(meta["perception"], meta["preset"], int(layout["proprio"][-1]), int(layout["depth"][-1]),
+    size = int(layout["depth"][-1]) if "depth" in layout else None  # None: the preset's (a blind student)
+    return student_networks(meta["perception"], meta["preset"], int(layout["proprio"][-1]), size,
                             int(layout["expert_goals"][-2]), int(meta["num_actions"]),
                             oracle_config=meta.get("oracle_config"))
 

@@ -217,7 +217,8 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
     meta = perception.info["meta"]
     if locomotion.info["meta"] != meta:
         raise DeployError(f"{files['perception']} and {files['locomotion']} come from different checkpoints")
-    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails, physics=physics,
+    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth="depth" in meta["obs_layout"],
+                    trails=trails, physics=physics,
                     **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]},
                files["perception"])

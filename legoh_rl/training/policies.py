@@ -59,7 +59,8 @@ def load_student(state: dict, protocol, variants: int, seed: int, num_threads=No
     """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol`` (on ``device``,
     the worlds stepped by ``physics``)."""
     meta = state["meta"]
-    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=True, trails=trails, device=device,
+    blind = "depth" not in meta["obs_layout"]  # RMA-B: trained without the camera, evaluated without it
+    base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=not blind, trails=trails, device=device,
                     physics=physics, **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
     student = make_student(base, meta["perception"], meta["preset"], oracle_config=meta.get("oracle_config"))

@@ -47,14 +47,15 @@ class StudentPolicy:
         self.policy = TensorDictSequential(hold, actor)
 
 
-def student_networks(perception: str, preset: str, proprio_dim: int, image_size: int, num_goals: int,
+def student_networks(perception: str, preset: str, proprio_dim: int, image_size: int | None, num_goals: int,
                      num_actions: int, init_std: float = 1.0, oracle_config: Mapping | None = None):
     """``(perception, locomotion actor, perception config)`` of a student, untrained.
 
     Args:
         perception: a name of :func:`legoh_rl.modules.perception.make_perception`.
         preset: ``"cpu"`` (64x64) or ``"paper"`` (128x128).
-        proprio_dim, image_size, num_goals, num_actions: the env's sizes (D, H = W, N, A).
+        proprio_dim, image_size, num_goals, num_actions: the env's sizes (D, H = W, N, A);
+            ``image_size`` ``None``: the preset's (a student without depth).
         init_std: initial action std of a learned locomotion actor.
         oracle_config: ``None`` for the student's own locomotion MLP (``learned``); an oracle's
             :class:`~legoh_rl.modules.configs.OracleConfig` fields for its actor, frozen
@@ -65,7 +66,8 @@ def student_networks(perception: str, preset: str, proprio_dim: int, image_size:
         ValueError: ``oracle_config`` with a perception that does not write
             ``priv_latent_uni``, or an oracle whose sizes differ from the student's.
     """
-    pcfg = perception_config(preset, proprio_dim, image_size=image_size, num_goals=num_goals)
+    sizes = {"num_goals": num_goals} | ({} if image_size is None else {"image_size": image_size})
+    pcfg = perception_config(preset, proprio_dim, **sizes)
     perc = make_perception(perception, pcfg)
     if oracle_config is None:
         actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=num_actions,
@@ -95,7 +97,8 @@ def hold_keys(perception) -> tuple[str, ...]:
 
 def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
                  init_std: float = 1.0, oracle_config: Mapping | None = None) -> StudentPolicy:
-    """Build the student sized for ``env`` (student or eval mode, depth on).
+    """Build the student sized for ``env`` (student or eval mode; depth on, or off for a
+    perception that reads none: RMA-B).
 
     Args:
         env: the (untransformed) hiking env.
@@ -107,17 +110,21 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
         oracle_config: the teacher's ``OracleConfig`` fields for a frozen-oracle locomotion
             (RMA, see :func:`student_networks`); ``None``: the student's own MLP.
     """
-    if not env.cfg.depth_enabled:
-        raise ValueError("the student needs the depth camera: build the env in 'student' or 'eval' mode")
     spec = env.observation_spec
-    perc, actor, pcfg = student_networks(perception, preset, spec["proprio"].shape[-1], spec["depth"].shape[-1],
+    size = spec["depth"].shape[-1] if env.cfg.depth_enabled else env.cfg.depth_camera.width
+    perc, actor, pcfg = student_networks(perception, preset, spec["proprio"].shape[-1], size,
                                          spec["expert_goals"].shape[-2], env.A, init_std, oracle_config)
+    if not env.cfg.depth_enabled and {"depth", "depth_goal_stack"} & set(perc.in_keys):
+        raise ValueError(f"perception {perception!r} reads depth: build the env with the depth camera "
+                         "(mode 'student' or 'eval', depth not false)")
     return StudentPolicy(perc, PerceptionHold(perc, hold_keys=hold_keys(perc)), actor, pcfg.io.history_len)
 
 
 def student_env(env: HikingEnv, student: StudentPolicy) -> TransformedEnv:
     """Wrap ``env`` with the student's transforms and state primers."""
-    transforms = [InitTracker(), DepthHistory(), GoalTiling()]
+    transforms = [InitTracker()]
+    if "depth" in env.observation_spec.keys():  # a blind student's env has no camera
+        transforms += [DepthHistory(), GoalTiling()]
     if "proprio_history" in student.perception.in_keys:  # RMA baselines: (T_h, D) proprio history
         transforms += [
             UnsqueezeTransform(dim=-2, in_keys=["proprio"], out_keys=["proprio_frame"]),
