@@ -29,7 +29,9 @@ Every checkpoint is evaluated once, by ``recipes/evaluate.py``'s ``evaluate`` (i
 under ``<out>/evals/<checkpoint>/``), on the same protocol: the categories x levels cells with
 ``--robots-per-cell`` robots each on ``--variants`` trail variants, repeated on the trail grid of
 each of ``--trail-seeds``; for one checkpoint mean ± std is over the trail grids (and runs), as in
-``evaluate.py``.
+``evaluate.py``. An evaluation already in ``--out`` for the same checkpoint file and protocol is
+read back rather than run again (``--fresh`` runs everything), so the command can be repeated as
+rows are trained.
 The paper's protocol (512 robots, 5 runs) is larger; the comparison is of the same metrics, not
 of the same sample.
 """
@@ -38,6 +40,9 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
+import hashlib
+import json
 import math
 import shlex
 import sys
@@ -508,9 +513,37 @@ def _check_unique(name: str, values: Sequence) -> None:
         raise ValueError(f"{name} must be distinct, got {values} (repeated: {dup})")
 
 
-def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path) -> dict[str, dict[str, Value]]:
+#: ``evaluate.yaml`` keys that do not change an evaluation's figures (where it runs, what it logs)
+_NOT_IN_RECORD = ("checkpoint", "output_dir", "video", "logger", "device", "num_threads")
+RECORD_NAME = "evaluated_with.json"
+
+
+def evaluation_record(path: Path, cfg) -> dict:
+    """What one evaluation's figures depend on: the checkpoint's SHA-256 and the composed
+    ``evaluate.yaml`` config but for :data:`_NOT_IN_RECORD`."""
+    config = OmegaConf.to_container(cfg, resolve=True)
+    return {"checkpoint_sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest(),
+            "config": {k: v for k, v in config.items() if k not in _NOT_IN_RECORD}}
+
+
+def read_table_csv(path: Path) -> dict[str, dict[str, Value]]:
+    """An evaluation's ``table.csv`` (``category,metric,mean,std``) as its aggregate."""
+    rows: dict[str, dict[str, Value]] = {}
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            rows.setdefault(r["category"], {})[r["metric"]] = (float(r["mean"]), float(r["std"]))
+    return rows
+
+
+def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse: bool = True
+                        ) -> dict[str, dict[str, Value]]:
     """``recipes/evaluate.py``'s ``evaluate`` on one checkpoint, its config composed from
     ``evaluate.yaml`` with ``settings``.
+
+    Each evaluation leaves :data:`RECORD_NAME` beside its ``table.csv`` (:func:`evaluation_record`);
+    with ``reuse`` a folder whose record matches (the same checkpoint file and protocol) is read
+    back instead of evaluated again, so the tables can be rewritten as rows are added without
+    re-running the others (``--fresh``: evaluate everything).
 
     Returns:
         the aggregate: {group: {metric: (mean, std)}}, groups the categories and ``"overall"``.
@@ -518,7 +551,15 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path) -> dic
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base=None):
         cfg = compose(config_name="evaluate")
     cfg = OmegaConf.merge(cfg, settings.overrides(path, output_dir))
-    return evaluate_recipe.evaluate(cfg)["rows"]
+    record = evaluation_record(path, cfg)
+    stamp, table = output_dir / RECORD_NAME, output_dir / "table.csv"
+    if reuse and stamp.is_file() and table.is_file() and json.loads(stamp.read_text()) == record:
+        print(f"{path}: reusing the evaluation in {output_dir} (same checkpoint and protocol)", flush=True)
+        return read_table_csv(table)
+    stamp.unlink(missing_ok=True)  # a stale record must not outlive the evaluation it described
+    rows = evaluate_recipe.evaluate(cfg)["rows"]
+    stamp.write_text(json.dumps(record, indent=1) + "\n")
+    return rows
 
 
 @dataclass
@@ -744,6 +785,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--video", action="store_true", help="render evaluate.py's short video of each checkpoint")
     p.add_argument("--logger", default="csv", help="csv | wandb (offline unless configured): each evaluation's log")
     p.add_argument("--only-paper", action="store_true", help="write the paper's numbers alone; evaluate nothing")
+    p.add_argument("--fresh", action="store_true",
+                   help="evaluate every checkpoint again, even where --out holds its evaluation on this protocol")
     return p
 
 
@@ -787,7 +830,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                "The paper: 512 robots, 30 s, 5 categories x 5 levels, mean ± std over 5 runs.",
                "Each method: a row of ours, the paper's under it. ↑: higher is better, ↓: lower."]
     keys = [r.key for t in tables for r in t.rows]
-    results = run_rows(keys, args.checkpoints, settings, args.out)
+    results = run_rows(keys, args.checkpoints, settings, args.out,
+                       evaluate_fn=functools.partial(evaluate_checkpoint, reuse=not args.fresh))
     written = write_tables(tables, results, args.out, "\n".join(header))
     print("\n" + written["tables.md"].read_text())
     print("written:\n" + "\n".join(f"  {p}" for p in written.values()))

@@ -3,6 +3,8 @@ hand-made meta blocks, the tables written from hand-made results, the command li
 and one tiny end-to-end run of the committed H1 oracle."""
 
 import csv
+import hashlib
+import json
 import math
 import re
 import sys
@@ -320,7 +322,7 @@ def test_only_paper_writes_every_table_without_evaluating(tmp_path, monkeypatch)
     assert "| Oracle | paper | 71.20 ± 0.72 |" in text
 
 
-def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys):
+def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, monkeypatch):
     ck = tmp_path / "ck"
     ck.mkdir()
     (ck / "oracle_h1.pt").symlink_to(ROOT / "checkpoints" / "oracle_h1.pt")
@@ -343,6 +345,23 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys):
     assert "Trail seeds: 9101" in text and "--trail-seeds 9101" in text
     assert f"not trained: `{ck / 'student_h1.pt'}`" in text
     assert "| Oracle | ours | " in capsys.readouterr().out
+    record = json.loads((out / "evals" / "oracle_h1" / pt.RECORD_NAME).read_text())
+    assert record["checkpoint_sha256"] == hashlib.sha256((ROOT / "checkpoints" / "oracle_h1.pt").read_bytes()).hexdigest()
+    assert record["config"]["trail_seeds"] == [9101] and "output_dir" not in record["config"]
+    # the same command again reads the evaluation back; --fresh or another protocol evaluates again
+    before = (out / "ablation.csv").read_text()
+    calls = []
+
+    def fake_evaluate(cfg):
+        calls.append(cfg.robots_per_cell)
+        return {"rows": {"overall": {m: (1.0, 0.0) for m in pt.METRICS}}}
+
+    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", fake_evaluate)
+    assert pt.main(argv) == 0 and calls == []
+    assert (out / "ablation.csv").read_text() == before
+    assert pt.main(argv + ["--fresh"]) == 0 and calls == [1]
+    assert pt.main(argv) == 0 and calls == [1]  # the record is now the fresh evaluation's
+    assert pt.main(argv + ["--robots-per-cell", "2"]) == 0 and calls == [1, 2]
 
 
 def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
