@@ -351,6 +351,27 @@ def test_recorded_block_sizes_are_the_ones_the_launches_ask_for(pair):
     assert all(b is None or b >= 32 for blocks in launched.values() for b in blocks)
 
 
+def test_recorded_modules_are_the_ones_the_launches_load(pair, monkeypatch):
+    """What the recording names (module and block size, resolved for the device) is, module id
+    for module id, what Warp loads when the same call launches: the ids a kernel cache holds."""
+    w = pair[1].worlds
+    context = w.wp._src.context
+    calls = [lambda: w.mjw.forward(w.m, w.d), lambda: w.mjw.set_const(w.m, w.d)]
+    device = w.wp.get_device(w.device)
+    recorded = {module.get_module_identifier(block_dim=context._resolve_launch_block_dim(device, b))
+                for module, blocks in w.record_launches(calls).values() for b in blocks}
+    loaded, original = set(), context.Module.load
+
+    def load(self, device, block_dim=None, *args, **kwargs):
+        loaded.add(self.get_module_identifier(block_dim=block_dim))
+        return original(self, device, block_dim, *args, **kwargs)
+
+    monkeypatch.setattr(context.Module, "load", load)
+    for call in calls:
+        call()
+    assert len(recorded) > 10 and loaded == recorded
+
+
 def test_compile_ahead_writes_a_gpu_kernel_cache_without_a_gpu(pair, tmp_path):
     """NVRTC compiles for sm_90 here: each module launched, per block size a CUDA launch would
     use (256 when none is asked), lands where Warp's cache lookup looks, as CUBIN and PTX."""

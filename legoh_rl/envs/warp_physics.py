@@ -192,7 +192,9 @@ class WarpWorlds(Worlds):
         """The Warp modules that ``calls`` launch, found without running anything on the device.
 
         Each call runs once with Warp's ``launch`` recording the kernel it is given (the overload
-        a generic kernel would get for its arguments) instead of launching it; a device-side loop
+        a generic kernel would get for its arguments; none for an empty launch, which Warp does
+        not load either, such as the tendon kernels of a model without tendons) instead of
+        launching it; a device-side loop
         runs its body once and a device-side if both branches, since with nothing running their
         conditions never change. The state is untouched.
 
@@ -212,6 +214,8 @@ class WarpWorlds(Worlds):
 
         def launch(kernel, dim, inputs=(), outputs=(), adj_inputs=(), adj_outputs=(), device=None, stream=None,
                    adjoint=False, record_tape=True, record_cmd=False, max_blocks=0, block_dim=None):
+            if context._normalize_launch_dim(dim)[1] == 0:  # Warp neither loads nor runs an empty launch
+                return
             if kernel.is_generic:  # the overload a launch would add for these argument types
                 kernel = kernel._add_normalized_overload(kernel.infer_argument_types([*inputs, *outputs]))
             launched.setdefault(id(kernel.module), (kernel.module, set()))[1].add(block_dim)
