@@ -17,7 +17,8 @@ it.
 Each method is one or more checkpoints under ``--checkpoints`` (:data:`ROWS`: ``oracle_h1.pt``,
 ``student_h1.pt``, ``student_g1.pt``, ``ablations/<robot>_<row>.pt``; every row under
 ``ablations/`` also takes training seeds, ``ablations/<robot>_<row>_seed<k>.pt``, as the runs of
-``recipes/config/experiment/<robot>_<row>.yaml`` with ``env.seed=<k>`` are named). A student's file is checked against the row before it is
+``recipes/config/experiment/<robot>_<row>.yaml`` with ``env.seed=<k>`` are named). A student's
+file is checked against the row before it is
 used (robot, perception, HLM on or off, vanilla VAE; see :func:`checkpoint_info` and
 :func:`mismatch`): ``student_h1.pt`` is a LEGO-H seed when it was trained with HLM and a "w TC-ViT"
 seed when it was not. A row with several matching files is reported as the mean ± std over them
@@ -41,7 +42,6 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
-import hashlib
 import json
 import math
 import shlex
@@ -57,6 +57,7 @@ from omegaconf import OmegaConf
 
 from legoh_rl.envs.metrics import METRIC_NAMES
 from legoh_rl.envs.trails import CATEGORIES, NUM_LEVELS
+from legoh_rl.training.checkpoint import file_digest
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 
@@ -522,7 +523,7 @@ def evaluation_record(path: Path, cfg) -> dict:
     """What one evaluation's figures depend on: the checkpoint's SHA-256 and the composed
     ``evaluate.yaml`` config but for :data:`_NOT_IN_RECORD`."""
     config = OmegaConf.to_container(cfg, resolve=True)
-    return {"checkpoint_sha256": hashlib.sha256(Path(path).read_bytes()).hexdigest(),
+    return {"checkpoint_sha256": file_digest(path),
             "config": {k: v for k, v in config.items() if k not in _NOT_IN_RECORD}}
 
 

@@ -28,7 +28,6 @@ import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when 
 # isort: split
 import dataclasses
 import functools
-import hashlib
 from pathlib import Path
 
 import hydra
@@ -49,6 +48,7 @@ from legoh_rl.training.builders import (
 from legoh_rl.training.checkpoint import (
     CheckpointError,
     check_meta,
+    file_digest,
     load_checkpoint,
     load_weights,
     require_training_state,
@@ -108,6 +108,11 @@ def validate(cfg: DictConfig) -> None:
                          f"({cfg.env.num_envs}): minibatches split the worlds")
 
 
+def frozen_oracle(cfg: DictConfig) -> bool:
+    """Whether the student's locomotion is the teacher's actor, frozen (``student.locomotion=oracle``)."""
+    return cfg.student.get("locomotion", "learned") == "oracle"
+
+
 def check_locomotion(cfg: DictConfig) -> None:
     """``student.locomotion``: ``learned`` (the student's own MLP) or ``oracle`` (RMA: the teacher's
     actor, frozen, fed by an adapter that estimates its latents).
@@ -121,7 +126,7 @@ def check_locomotion(cfg: DictConfig) -> None:
     locomotion = cfg.student.get("locomotion", "learned")
     if locomotion not in LOCOMOTIONS:
         raise ValueError(f"unknown student.locomotion {locomotion!r}; valid: {list(LOCOMOTIONS)}")
-    if locomotion != "oracle":
+    if not frozen_oracle(cfg):
         return
     if cfg.student.perception not in ("rmah", "rmab"):
         raise ValueError(f"student.locomotion=oracle feeds the teacher's frozen actor with the perception's "
@@ -133,11 +138,6 @@ def check_locomotion(cfg: DictConfig) -> None:
     if cfg.hlm.enabled:
         raise ValueError("student.locomotion=oracle freezes the locomotion module, whose actions HLM shapes: "
                          "set hlm.enabled=false")
-
-
-def file_digest(path: str | Path) -> str:
-    """SHA-256 of a file (identifies the teacher a student was distilled from)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def check_teacher(state: dict, cfg: DictConfig, digest: str, path) -> None:
@@ -164,9 +164,8 @@ def make_losses(student, critic, num_actions: int, cfg: DictConfig, device: torc
                         lmbda=cfg.ppo.lmbda, learning_rate=cfg.ppo.learning_rate, desired_kl=cfg.ppo.desired_kl)
     ppo, gae = make_ppo_loss(student.actor, critic, ppo_cfg)
     # the privileged-latent term trains what a frozen oracle actor (student.locomotion=oracle) reads
-    oracle = cfg.student.get("locomotion", "learned") == "oracle"
     dagger = DAggerLoss(w1=cfg.imitation.w1, w2=cfg.imitation.w2, w3=cfg.imitation.w3,
-                        w_priv=float(cfg.imitation.get("w_priv", 1.0)) if oracle else 0.0)
+                        w_priv=float(cfg.imitation.get("w_priv", 1.0)) if frozen_oracle(cfg) else 0.0)
     dagger.set_keys(action_uni=STUDENT_ACTION_KEY)
     h = cfg.hlm
     mask_ratio = 0.0 if h.vanilla_vae else h.mask_ratio
@@ -231,7 +230,7 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     teacher = Teacher(cfg.teacher, cfg.env.robot, device)
     base = make_env(cfg.env, mode="student", device=str(device), **gait_kwargs(teacher.meta))  # the teacher's clock
     init_std = cfg.student.get("init_std") or float(teacher.action_std.mean())  # null: the teacher's
-    oracle = cfg.student.get("locomotion", "learned") == "oracle"
+    oracle = frozen_oracle(cfg)
     oracle_config = dataclasses.asdict(teacher.networks.cfg) if oracle else None
     student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std),
                            oracle_config=oracle_config)

@@ -7,7 +7,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from legoh_rl.training.checkpoint import load_checkpoint
+from legoh_rl.training.checkpoint import file_digest, load_checkpoint
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 sys.path.insert(0, str(RECIPES))
@@ -233,7 +233,7 @@ def test_a_branch_starts_from_another_runs_state_with_its_own_random_streams(tea
     assert not torch.equal(torch.get_rng_state(), state["rng"]["torch"])
     info = p.meta["branched_from"]
     assert info["checkpoint"] == str(src / "last.pt") and (info["iteration"], info["frames"]) == (2, 80)
-    assert info["sha256"] == unified.file_digest(src / "last.pt")
+    assert info["sha256"] == file_digest(src / "last.pt")
     # trained on, the branch writes its own checkpoint, which records where it came from and resumes exactly
     out = unified.train(tiny(teacher, tmp_path / "b", "collector.total_frames=120", *branch))
     assert out["iteration"] == 3 and out["frames"] == 120

@@ -194,9 +194,8 @@ class WarpWorlds(Worlds):
         Each call runs once with Warp's ``launch`` recording the kernel it is given (the overload
         a generic kernel would get for its arguments; none for an empty launch, which Warp does
         not load either, such as the tendon kernels of a model without tendons) instead of
-        launching it; a device-side loop
-        runs its body once and a device-side if both branches, since with nothing running their
-        conditions never change. The state is untouched.
+        launching it; a device-side loop runs its body once and a device-side if both branches,
+        since with nothing running their conditions never change. The state is untouched.
 
         Args:
             calls: functions of no argument that launch Warp kernels on :attr:`device`.

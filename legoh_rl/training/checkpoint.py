@@ -11,6 +11,7 @@ target: a run killed while writing leaves the previous checkpoint intact.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import random
 import tempfile
@@ -22,8 +23,14 @@ import torch
 
 __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
-    "CheckpointError", "require_training_state", "load_weights",
+    "CheckpointError", "require_training_state", "load_weights", "file_digest",
 ]
+
+
+def file_digest(path: str | os.PathLike) -> str:
+    """SHA-256 of a file, hex (identifies a checkpoint: a student's teacher, a branch point, an
+    evaluated policy)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 class CheckpointError(ValueError):

@@ -30,9 +30,8 @@ __all__ = ["LOCOMOTIONS", "StudentPolicy", "make_student", "student_env", "stude
 #: the student's locomotion module: its own MLP trained by the recipe (``learned``, LEGO-H), or
 #: the teacher's actor, frozen, fed the perception's estimates of its latents (``oracle``, RMA)
 LOCOMOTIONS = ("learned", "oracle")
-#: what each perception's outputs must include for a locomotion module
-LOCOMOTION_INPUTS = {"learned": ("z_uni", "delta_g0", "goals_uni"),
-                     "oracle": ("z_uni", "priv_latent_uni", "goals_uni")}
+#: the perception outputs the frozen oracle actor reads
+ORACLE_LOCOMOTION_INPUTS = ("z_uni", "priv_latent_uni", "goals_uni")
 
 
 class StudentPolicy:
@@ -73,7 +72,7 @@ def student_networks(perception: str, preset: str, proprio_dim: int, image_size:
         actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=num_actions,
                                                        init_std=init_std))
         return perc, actor, pcfg
-    missing = [k for k in LOCOMOTION_INPUTS["oracle"] if k not in perc.out_keys]
+    missing = [k for k in ORACLE_LOCOMOTION_INPUTS if k not in perc.out_keys]
     if missing:
         raise ValueError(f"student.locomotion=oracle (the teacher's actor, frozen) reads {missing}, which "
                          f"perception {perception!r} does not estimate: use rmah or rmab")
