@@ -11,10 +11,10 @@ each kernel eagerly and replaying the step's captured CUDA graph (``cuda_graph``
 a GPU), the share of the Warp env's time inside ``WarpWorlds.step`` ("in physics": the rest is
 the env's host work), the share spent in its host transfers (the upload of state and targets,
 the download of outputs), and the largest qpos difference between the graph's and the eager
-step from one state ("graph diff"). A student's depth is cast by Warp on the device (``depth_camera.source``
-auto on ``physics=warp``); the "warp+host depth" column is the same env with the host march
-instead (``source=host``), the comparison that decides which depth path is faster. The C
-backend runs on ``--threads`` CPU threads.
+step from one state ("graph diff"). In the "warp" column a student's depth is cast by Warp on the
+device (``depth_camera.source=warp``); the "warp+host depth" column is the same env with the host
+march instead (``source=host``, what ``auto`` picks), the comparison that decides which depth path
+is faster. The C backend and the host march run on ``--threads`` CPU threads.
 """
 
 from __future__ import annotations

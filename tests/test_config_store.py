@@ -10,6 +10,7 @@ import yaml
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.envs import HikingEnvConfig
+from legoh_rl.envs.sensors import DepthCameraConfig
 from legoh_rl.training.builders import env_config
 from legoh_rl.training.config_store import RECIPE_ENV_KEYS, env_defaults
 
@@ -33,7 +34,8 @@ def test_env_defaults_are_the_dataclass_fields():
     assert d["num_envs"] == 64 and d["feet_edge_from_level"] == 4 and d["reward_overrides"] == {}
     assert d["domain_rand"] is True and d["curriculum"] is True  # switches, not the nested configs
     fields = {f.name for f in dataclasses.fields(HikingEnvConfig)}
-    assert set(RECIPE_ENV_KEYS) <= fields
+    assert set(RECIPE_ENV_KEYS) - {"depth_source"} <= fields  # depth_source: depth_camera.source
+    assert d["depth_source"] == DepthCameraConfig().source == "auto"
 
 
 @pytest.mark.parametrize("recipe, num_envs", [("oracle_ppo", 128), ("unified", 32)])
@@ -52,6 +54,10 @@ def test_every_env_key_is_overridable_and_reaches_the_env_config():
     ec = env_config(cfg.env, "oracle")
     assert ec.levels == (0, 2) and ec.category_weights == (1.0, 2.0, 1.0, 1.0, 1.0) and ec.gait_period == 0.8
     assert ec.num_envs == 128 and ec.cmd_speed == HikingEnvConfig.cmd_speed
+    assert ec.depth_camera.source == "auto"  # the depth camera's source: env.depth_source
+    assert env_config(composed("oracle_ppo", ["env.depth_source=host"]).env, "student").depth_camera.source == "host"
+    with pytest.raises(ValueError, match="depth source must be one of .* got 'gpu'"):
+        env_config(composed("oracle_ppo", ["env.depth_source=gpu"]).env, "student")
 
 
 def test_a_misspelt_env_key_is_an_error():

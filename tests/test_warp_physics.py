@@ -9,6 +9,8 @@ pose measured 1.6e-3 after 25 control steps, a 5 cm landing 2.3e-3 after 50.
 """
 
 import dataclasses
+import os
+import subprocess
 import sys
 from pathlib import Path
 
@@ -150,10 +152,11 @@ def test_same_actions_give_the_same_rewards_and_terminations(pair):
 
 
 def test_depth_cast_on_the_device_equals_mujocos_exact_rays():
-    """physics=warp casts depth with mujoco_warp.rays on the simulation's device (depth_camera.source
-    auto): the image of the same state is C MuJoCo's exact mj_ray depth (render_exact) to float32
-    rounding of the camera pose (rays agree to ~2e-5 m, i.e. ~5e-6 of the 3.8 m depth range)."""
-    c, w = make("mujoco", mode="student"), make("warp", mode="student")
+    """depth_camera.source=warp casts depth with mujoco_warp.rays on the simulation's device: the
+    image of the same state is C MuJoCo's exact mj_ray depth (render_exact) to float32 rounding of
+    the camera pose (rays agree to ~2e-5 m, i.e. ~5e-6 of the 3.8 m depth range)."""
+    c = make("mujoco", mode="student")
+    w = make("warp", mode="student", depth_camera=DepthCameraConfig(source="warp"))
     assert w.depth_on_device and isinstance(w.depth, torch.Tensor) and w.depth.device == w.worlds.torch_device
     same_start(c, w)
     w._render_depth(np.ones(N, dtype=bool))
@@ -168,10 +171,12 @@ def test_depth_cast_on_the_device_equals_mujocos_exact_rays():
     assert torch.equal(td["depth"], w.depth) and td["depth"].data_ptr() != w.depth.data_ptr()
 
 
-def test_host_depth_on_warp_physics_matches_the_c_backends():
-    """depth_camera.source=host keeps the host march on physics=warp: the same image as on C MuJoCo."""
+@pytest.mark.parametrize("source", ["host", "auto"])
+def test_host_depth_on_warp_physics_matches_the_c_backends(source):
+    """depth_camera.source=host, and the default auto, keep the host march on physics=warp (the
+    faster path measured on an H100): the same image as on C MuJoCo."""
     c = make("mujoco", mode="student")
-    w = make("warp", mode="student", depth_camera=DepthCameraConfig(source="host"))
+    w = make("warp", mode="student", depth_camera=DepthCameraConfig(source=source))
     assert not w.depth_on_device and isinstance(w.depth, np.ndarray)
     same_start(c, w)
     c._render_depth(np.ones(N, dtype=bool))
@@ -187,7 +192,7 @@ def test_host_depth_on_warp_physics_matches_the_c_backends():
 def test_device_depth_renders_only_the_ticking_worlds_and_its_noise_resumes():
     """A partial reset refreshes the reset worlds' images alone; noise and dropout come from a seeded
     device generator whose state the env's state_dict carries."""
-    cam = DepthCameraConfig(noise_std=0.05, dropout=0.1)
+    cam = DepthCameraConfig(noise_std=0.05, dropout=0.1, source="warp")
     w = make("warp", mode="student", depth_camera=cam)
     td = w.rand_step(w.reset())
     before = w.depth.clone()
@@ -281,10 +286,12 @@ def test_oracle_recipe_trains_and_evaluate_runs_on_warp(tmp_path):
     # a student distilled on Warp: its depth cast on the simulation's device, through the
     # student transforms (depth history, perception hold) into TC-ViT
     unified.train(cfg_of("unified", env + [f"teacher={tmp_path / 'ck' / 'last.pt'}", "collector.steps_per_env=10",
+                                           "env.depth_source=warp",
                                            "collector.total_frames=40", "dagger_iters=1", "hlm.warmup_iters=1",
                                            "ppo.num_epochs=1", f"checkpoint.dir={tmp_path / 'st'}"]))
     student = load_checkpoint(tmp_path / "st" / "last.pt")
     assert student["config"]["env"]["physics"] == "warp" and student["frames"] == 40
+    assert student["config"]["env"]["depth_source"] == "warp"
     with pytest.raises(ValueError, match="unknown physics 'gpu'"):
         evaluate_recipe.evaluate(cfg_of("evaluate", ["checkpoint=zero", "physics=gpu", "categories=[randommix]",
                                                      "levels=[0]", "robots_per_cell=1", "variants=1", "video=false",
@@ -374,20 +381,26 @@ def test_recorded_modules_are_the_ones_the_launches_load(pair, monkeypatch):
 
 def test_compile_ahead_writes_a_gpu_kernel_cache_without_a_gpu(pair, tmp_path):
     """NVRTC compiles for sm_90 here: each module launched, per block size a CUDA launch would
-    use (256 when none is asked), lands where Warp's cache lookup looks, as CUBIN and PTX."""
+    use (256 when none is asked), lands as CUBIN and PTX where a Warp process started with
+    WARP_CACHE_PATH=<cache_dir> looks (Warp appends its version to that directory)."""
     w = pair[1].worlds
     wp = w.wp
     x = wp.zeros(8, dtype=float, device="cpu")
     calls = [lambda: wp.launch(_add_one, dim=8, inputs=[x]),
              lambda: wp.launch_tiled(_add_one_tiled, dim=[1], inputs=[x], block_dim=64)]
     paths = w.compile_ahead(tmp_path / "cache", arch=90, calls=calls, workers=2)
+    probe = "import warp; warp.config.quiet = True; warp.init(); print(warp.config.kernel_cache_dir)"
+    looked_up = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True,
+                               env=dict(os.environ, WARP_CACHE_PATH=str(tmp_path / "cache"))).stdout.strip()
+    lookup = Path(looked_up.splitlines()[-1])
+    assert lookup == (tmp_path / "cache" / wp.config.version).resolve()
     module = _add_one.module
     want = set()
     for block in (256, 64):
         ident = module.get_module_identifier(block_dim=block)
-        want |= {tmp_path / "cache" / ident / f"{ident}.sm90.{fmt}" for fmt in ("cubin", "ptx")}
-        assert list((tmp_path / "cache" / ident).glob("*.meta")), ident
-    assert set(paths) == want and all(p.stat().st_size > 0 for p in paths)
+        want |= {lookup / ident / f"{ident}.sm90.{fmt}" for fmt in ("cubin", "ptx")}
+        assert list((lookup / ident).glob("*.meta")), ident
+    assert {p.resolve() for p in paths} == want and all(p.stat().st_size > 0 for p in paths)
     assert x.numpy().sum() == 0.0  # nothing ran
     with pytest.raises(ValueError, match="arch 12: this Warp's NVRTC compiles for"):
         w.compile_ahead(tmp_path / "cache", arch=12, calls=calls)

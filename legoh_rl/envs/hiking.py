@@ -572,9 +572,9 @@ class HikingEnv(EnvBase):
     @property
     def depth_on_device(self) -> bool:
         """Whether depth is cast by MuJoCo Warp on the simulation's device and kept there as a
-        torch tensor (``depth_camera.source`` ``warp``, or ``auto`` on ``physics=warp``)."""
-        source = self.cfg.depth_camera.source
-        return source == "warp" or (source == "auto" and self.cfg.physics == "warp")
+        torch tensor (``depth_camera.source=warp``; ``auto`` is the host march on either backend,
+        the faster one measured on an H100: docs/gpu_physics.md, "Depth on the device")."""
+        return self.cfg.depth_camera.source == "warp"
 
     def _render_depth(self, which: np.ndarray) -> None:
         if self.camera is None or not which.any():

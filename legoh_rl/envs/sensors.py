@@ -68,7 +68,8 @@ class DepthCameraConfig:
         source: who casts the rays: ``"host"`` (this module's :class:`DepthCamera`: the
             height-map march and the obstacle caster, on the CPU), ``"warp"`` (MuJoCo Warp's
             exact rays on the simulation's device, :mod:`legoh_rl.envs.warp_depth`; needs
-            ``env.physics=warp``), or ``"auto"`` (``warp`` on ``env.physics=warp``, else ``host``).
+            ``env.physics=warp``), or ``"auto"`` (``host`` on either backend: on an H100 the
+            host march on 16 threads gave the student ~10x the env steps/s of Warp's rays).
     """
 
     height: int = 64

@@ -296,16 +296,18 @@ class WarpWorlds(Worlds):
         compile at its start (:meth:`record_launches` over :attr:`compile_calls`: the control
         step, resets, ``forward``, ``set_const`` and the depth camera's rays) can be compiled
         here, with the block sizes a CUDA launch would use (``block_dim`` or Warp's 256), and
-        written in Warp's kernel-cache layout (``<cache_dir>/<module id>/<module id>.sm<arch>
-        .cubin`` or ``.ptx``, and its ``.meta``). A GPU process whose Warp kernel cache is
-        ``cache_dir`` (``WARP_CACHE_PATH=<cache_dir>``) then loads them instead of compiling.
+        written in Warp's kernel-cache layout (``<cache_dir>/<warp version>/<module id>/<module
+        id>.sm<arch>.cubin`` or ``.ptx``, and its ``.meta``: Warp appends its version to the
+        directory ``WARP_CACHE_PATH`` names). A GPU process run with ``WARP_CACHE_PATH=<cache_dir>``
+        and the same Warp version then loads them instead of compiling.
         A module's id hashes its code and options, not the device; the model's own kernels
         (its geom pairs' collision kernels) need the same robot and terrain as the run. Kernels
         that only a CUDA device launches (MuJoCo Warp's conditional graph nodes) are not
         recorded here and compile on the GPU as before.
 
         Args:
-            cache_dir: the kernel cache to write (created; existing entries are kept).
+            cache_dir: the directory to hand to ``WARP_CACHE_PATH`` (created; existing entries
+                are kept).
             arch: the CUDA compute capability, e.g. 90 for H100 and H200, 80 for A100.
             formats: ``cubin`` (what Warp loads when the driver is older than its toolkit) and
                 ``ptx`` (what it loads otherwise).
@@ -327,7 +329,7 @@ class WarpWorlds(Worlds):
         if bad or not formats:
             raise ValueError(f"formats must be some of ('cubin', 'ptx'), got {formats!r}")
         launched = self.record_launches(self.compile_calls if calls is None else calls)
-        root = Path(cache_dir)
+        root = Path(cache_dir) / wp.config.version  # where Warp looks under WARP_CACHE_PATH
         root.mkdir(parents=True, exist_ok=True)
 
         def build(module, blocks) -> list[Path]:

@@ -9,6 +9,7 @@ from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DomainRandConfig
 from legoh_rl.envs.robots import get_robot_spec
+from legoh_rl.envs.sensors import DepthCameraConfig
 from legoh_rl.envs.trail_source import validate_categories
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
@@ -51,7 +52,8 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
     """A :class:`HikingEnvConfig` from a recipe's ``env`` section (validated, nothing built).
 
     Keys the section leaves out (or sets to null) keep the dataclass's defaults, which are the only
-    place env defaults are written. ``domain_rand: false`` and ``curriculum: false`` switch those off.
+    place env defaults are written. ``domain_rand: false`` and ``curriculum: false`` switch those off;
+    ``depth_source`` (``auto | host | warp``) is the depth camera's ``source``.
     The env's device is not a key of the section: the recipe's ``device`` sets it (``overrides``).
 
     Raises:
@@ -88,6 +90,8 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         kwargs["domain_rand"] = DomainRandConfig.off()
     if not cfg.get("curriculum", True):
         kwargs["curriculum"] = CurriculumConfig(enabled=False)
+    if cfg.get("depth_source") is not None:
+        kwargs["depth_camera"] = DepthCameraConfig(source=str(cfg["depth_source"]))
     kwargs.update(overrides)
     return HikingEnvConfig(**kwargs)
 

@@ -14,16 +14,17 @@ import dataclasses
 from hydra.core.config_store import ConfigStore
 
 from legoh_rl.envs import HikingEnvConfig
+from legoh_rl.envs.sensors import DepthCameraConfig
 
 __all__ = ["RECIPE_ENV_KEYS", "env_defaults", "register_configs"]
 
 #: The :class:`HikingEnvConfig` fields a recipe's ``env`` section sets (see
 #: :func:`legoh_rl.training.builders.env_config`); ``domain_rand`` and ``curriculum`` are switches
-#: there (``false``: off), not the nested configs.
+#: there (``false``: off), not the nested configs; ``depth_source`` is ``depth_camera.source``.
 RECIPE_ENV_KEYS = ("robot", "num_envs", "categories", "category_weights", "levels", "variants", "num_threads", "physics", "seed",
                    "domain_rand", "curriculum", "episode_length_s", "cmd_speed", "gait_period", "gait_stance",
                    "gait_amplitude", "gait_feedforward", "feet_edge_from_level", "pit_depths", "reward_overrides",
-                   "depth")
+                   "depth", "depth_source")
 _SWITCHES = ("domain_rand", "curriculum")
 
 
@@ -35,6 +36,9 @@ def env_defaults() -> dict:
     for key in RECIPE_ENV_KEYS:
         if key in _SWITCHES:
             out[key] = True
+            continue
+        if key == "depth_source":
+            out[key] = DepthCameraConfig().source
             continue
         f = fields[key]
         value = f.default_factory() if f.default is dataclasses.MISSING else f.default
