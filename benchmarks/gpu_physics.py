@@ -75,16 +75,17 @@ def transfer_share(env: HikingEnv, seconds: float) -> float:
 def graph_parity(worlds: WarpWorlds) -> float:
     """Largest |qpos| difference between one control step replayed from the captured CUDA graph
     and the same step launched eagerly, from the same state (nan when the worlds have no graph)."""
-    if worlds._graph is None:
+    graph = worlds._graphs.get("step")
+    if graph is None:
         return float("nan")
     state = [worlds.qpos.copy(), worlds.qvel.copy(), worlds.ctrl.copy()]
     out = []
-    for graph in (False, True):
+    for replay in (False, True):
         worlds.qpos[:], worlds.qvel[:], worlds.ctrl[:] = state
         with worlds.wp.ScopedDevice(worlds.device):
             worlds._upload_state()
-            if graph:
-                worlds.wp.capture_launch(worlds._graph)
+            if replay:
+                worlds.wp.capture_launch(graph)
             else:
                 worlds._launch_control_step()
         worlds._download()
@@ -95,12 +96,12 @@ def graph_parity(worlds: WarpWorlds) -> float:
 def warp_rates(worlds: WarpWorlds, seconds: float) -> tuple[float, float]:
     """Physics-only world-steps/s of ``worlds`` launching eagerly, then replaying its CUDA graph
     (nan when it has none)."""
-    graph = worlds._graph
-    worlds._graph, worlds.cuda_graph = None, False
+    graphs = worlds.cuda_graph
+    worlds.cuda_graph = False  # the captured graphs are kept, not replayed
     eager = warp_physics_rate(worlds, seconds)
-    if graph is None:
+    worlds.cuda_graph = graphs
+    if "step" not in worlds._graphs:
         return eager, float("nan")
-    worlds._graph, worlds.cuda_graph = graph, True
     return eager, warp_physics_rate(worlds, seconds)
 
 

@@ -259,6 +259,17 @@ def test_bad_actions():
     assert torch.isfinite(nxt["proprio"]).all()
 
 
+def test_time_spent_counts_steps_their_physics_and_resets():
+    env = make()
+    assert env.time_spent == {"step": 0.0, "physics": 0.0, "reset": 0.0}
+    td = env.reset()
+    after_reset = dict(env.time_spent)
+    assert after_reset["reset"] > 0 and after_reset["step"] == after_reset["physics"] == 0
+    env.rand_step(td)
+    assert 0 < env.time_spent["physics"] < env.time_spent["step"]
+    assert env.time_spent["reset"] == after_reset["reset"]  # a step without done worlds resets nothing
+
+
 def test_diverged_world_resets_alone_and_is_reported():
     env = make(n=3)
     env.reset()

@@ -41,6 +41,8 @@ def test_oracle_trains_then_resumes_where_it_stopped(tmp_path):
 
     rows = plot_curves.load(ck / "metrics.jsonl")
     assert [r["step"] for r in rows] == [32, 64] and "reward/total" in rows[0]
+    for r in rows:  # where each iteration's env time went: its steps, their physics, its resets
+        assert 0 < r["env/physics_s"] < r["env/step_s"] < r["train/collect_s"] and r["env/reset_s"] >= 0
     assert plot_curves.plot(rows, tmp_path / "curves.png", "tiny").stat().st_size > 1000
     gait = plot_curves.plot(rows, tmp_path / "gait.png", "tiny", panels=plot_curves.GAIT_PANELS)
     assert gait.stat().st_size > 1000 and all(len(p) == 6 for p in plot_curves.PANEL_SETS.values())

@@ -408,24 +408,27 @@ def test_compile_ahead_writes_a_gpu_kernel_cache_without_a_gpu(pair, tmp_path):
         w.compile_ahead(tmp_path / "cache", formats=("sass",), calls=calls)
 
 
-def test_cuda_graph_captures_on_the_second_step_and_replays_after(pair, monkeypatch):
+def test_cuda_graph_captures_on_the_second_run_and_replays_after(pair, monkeypatch):
     """The control flow of cuda_graph (Warp's CPU device has no graphs, so capture and replay are
-    stand-ins here): step 1 launches eagerly, step 2 captures then replays, later steps replay
-    only; a failed capture warns once and the worlds launch eagerly from then on."""
+    stand-ins here), per launch sequence (the step, a reset's reset_data, forward, set_const): the
+    first run launches eagerly, the second captures then replays, later runs replay only; a
+    sequence whose capture fails warns once and launches eagerly from then on, while the others
+    keep their graphs; cuda_graph=False launches eagerly without dropping the graphs."""
     _, w = pair
     with pytest.raises(ValueError, match="cuda_graph=True needs a CUDA device"):
         WarpWorlds(w.built, 1, cuda_graph=True, device="cpu")
     worlds = WarpWorlds(w.built, 2, compile_workers=0)
-    assert worlds.cuda_graph is False and worlds._graph is None
+    assert worlds.cuda_graph is False and worlds._graphs == {}
     calls = []
-    monkeypatch.setattr(worlds, "_launch_control_step", lambda: calls.append("launch"))
 
     class Capture:
         def __init__(self, device):
             calls.append(f"capture on {device}")
 
         def __enter__(self):
-            self.graph = "graph"
+            if "fail" in calls[-2]:
+                raise RuntimeError("no graphs here")
+            self.graph = f"graph of {calls[-2]}"
             return self
 
         def __exit__(self, *exc):
@@ -434,21 +437,61 @@ def test_cuda_graph_captures_on_the_second_step_and_replays_after(pair, monkeypa
     monkeypatch.setattr(worlds.wp, "ScopedCapture", Capture)
     monkeypatch.setattr(worlds.wp, "capture_launch", lambda graph: calls.append(f"replay {graph}"))
     worlds.cuda_graph = True
+    step, fail = (lambda: calls.append("step")), (lambda: calls.append("fail"))
     for _ in range(3):
-        worlds._advance()
-    assert calls == ["launch", "capture on cpu", "launch", "replay graph", "replay graph"]
-
-    class Failing(Capture):
-        def __enter__(self):
-            raise RuntimeError("no graphs here")
-
-    fresh = WarpWorlds(w.built, 2, compile_workers=0)
+        worlds._launch("step", step)
+    assert calls == ["step", "capture on cpu", "step", "replay graph of step", "replay graph of step"]
     calls.clear()
-    monkeypatch.setattr(fresh, "_launch_control_step", lambda: calls.append("launch"))
-    monkeypatch.setattr(fresh.wp, "ScopedCapture", Failing)
-    fresh.cuda_graph = True
-    fresh._advance()
-    with pytest.warns(UserWarning, match="CUDA graph capture failed .*no graphs here"):
-        fresh._advance()
-    fresh._advance()
-    assert calls == ["launch", "capture on cpu", "launch", "launch"] and fresh.cuda_graph is False
+    worlds._launch("set_const", fail)
+    with pytest.warns(UserWarning, match="CUDA graph capture of 'set_const' failed .*no graphs here"):
+        worlds._launch("set_const", fail)
+    worlds._launch("set_const", fail)
+    worlds._launch("step", step)
+    assert calls == ["fail", "capture on cpu", "fail", "fail", "replay graph of step"]
+    calls.clear()
+    worlds.cuda_graph = False
+    worlds._launch("step", step)
+    assert calls == ["step"] and "step" in worlds._graphs
+
+
+def test_a_reset_and_a_step_go_through_their_launch_sequences(pair, monkeypatch):
+    """A step launches the "step" sequence; a reset "reset" (reset_data on the persistent mask of
+    the reset worlds), "forward" and, after masses changed, "set_const": the sequences a CUDA
+    device captures."""
+    _, w = pair
+    worlds = WarpWorlds(w.built, 3, compile_workers=0)
+    seen, launch = [], worlds._launch
+
+    def recording(name, fn):
+        seen.append(name)
+        if name == "reset":
+            seen.append(worlds._mask_view.cpu().tolist())
+        launch(name, fn)
+
+    monkeypatch.setattr(worlds, "_launch", recording)
+    worlds.step()
+    worlds.per_world("body_mass")[2, 1] += 1.0
+    worlds.set_const(np.array([2]))
+    worlds.reset(np.array([2]))
+    assert seen == ["step", "reset", [False, False, True], "set_const", "forward"]
+
+
+def test_only_changed_rows_of_a_randomised_field_are_uploaded(pair):
+    """Domain randomisation rewrites the reset worlds' rows of a per-world field; the upload
+    sends those rows alone (a value put straight into the simulation's copy of another world's
+    row survives it), and the simulation then holds the host's values."""
+    _, w = pair
+    worlds = WarpWorlds(w.built, 3, compile_workers=0)
+    friction = worlds.per_world("geom_friction")
+    friction[:, :, 0] = 0.7
+    worlds.step()
+    view = worlds._field_view["geom_friction"]
+    assert torch.allclose(view[..., 0], torch.tensor(0.7, dtype=view.dtype))
+    view[0, 0, 0] = 0.123  # the simulation's copy of world 0, changed behind the host's back
+    worlds.per_world("geom_friction")[1, :, 0] = 0.4  # world 1 re-randomised
+    worlds.step()
+    assert float(view[0, 0, 0]) == pytest.approx(0.123)  # row 0 was not sent again
+    assert torch.allclose(view[1, :, 0], torch.tensor(0.4, dtype=view.dtype))
+    assert torch.allclose(view[2, :, 0], torch.tensor(0.7, dtype=view.dtype))
+    worlds.step()  # nothing changed: nothing sent
+    assert float(view[0, 0, 0]) == pytest.approx(0.123)

@@ -20,6 +20,7 @@ Keys (docs/observations.md has every layout and scale; docs/keys.md the contract
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Sequence
 from typing import Protocol
 
@@ -174,6 +175,9 @@ class HikingEnv(EnvBase):
         self.global_steps = 0
         self.diverged_total = 0
         self.bad_action_total = 0
+        #: wall seconds spent since construction in ``step`` (``_step``), in its physics
+        #: (``worlds.step``) and in resets (``_reset``): where a collector's env time goes
+        self.time_spent = {"step": 0.0, "physics": 0.0, "reset": 0.0}
 
         m = self.built.model
         self.q_default = np.array(self.robot.default_joint_pos)
@@ -304,6 +308,7 @@ class HikingEnv(EnvBase):
         self.rng = np.random.default_rng(seed)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        started = time.perf_counter()
         N = self.cfg.num_envs
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
@@ -322,7 +327,9 @@ class HikingEnv(EnvBase):
                 self._obs[key][ids] = rows
             obs = self._obs
         no = np.zeros(N, bool)
-        return self._to_td(obs, episode=self._empty_episode(), info=(no, no), flags=(no, no, no))
+        out = self._to_td(obs, episode=self._empty_episode(), info=(no, no), flags=(no, no, no))
+        self.time_spent["reset"] += time.perf_counter() - started
+        return out
 
     def _full_observations(self) -> dict:
         """Observations of every world from the current state (kept for the next partial reset)."""
@@ -332,6 +339,7 @@ class HikingEnv(EnvBase):
         return self._obs
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        started = time.perf_counter()
         N, A = self.cfg.num_envs, self.A
         action = tensordict.get("action", None)
         if action is None:
@@ -365,7 +373,9 @@ class HikingEnv(EnvBase):
         self.episode_step[:] += 1
         self.global_steps += 1
         self.randomizer.push(self.episode_step % self.push_every == 0, self.rng)
+        physics = time.perf_counter()
         diverged = self.worlds.step()
+        self.time_spent["physics"] += time.perf_counter() - physics
         if diverged.any():
             self.diverged_total += int(diverged.sum())
 
@@ -396,8 +406,10 @@ class HikingEnv(EnvBase):
         self._obs.update(obs)
         self.dq_prev[:] = state["dq"]
         self.torques_prev[:] = state["torques"]
-        return self._to_td(obs, episode=episode, info=(diverged, bad_action), reward=total, reward_terms=terms,
-                           flags=(done, terminated, truncated))
+        out = self._to_td(obs, episode=episode, info=(diverged, bad_action), reward=total, reward_terms=terms,
+                          flags=(done, terminated, truncated))
+        self.time_spent["step"] += time.perf_counter() - started
+        return out
 
     # ------------------------------------------------------------------ episodes
     def _reset_worlds(self, ids: np.ndarray) -> None:

@@ -43,6 +43,24 @@ _DERIVED_FIELDS = ("body_subtreemass", "body_invweight0", "dof_invweight0", "act
 _OUTPUTS = ("qpos", "qvel", "xpos", "xquat", "sensordata", "actuator_force", "cam_xpos", "cam_xmat")
 
 
+class _Columns:
+    """Arrays packed side by side in one (N, width) transfer buffer: ``slices[name] = (a, b)``."""
+
+    def __init__(self, slices: dict[str, tuple[int, int]]) -> None:
+        self.slices = slices
+        self.width = max((b for _, b in slices.values()), default=0)
+
+
+def _columns(shapes: dict[str, tuple[int, ...]]) -> _Columns:
+    """Consecutive column ranges for arrays of per-world ``shapes`` (each flattened)."""
+    slices, at = {}, 0
+    for name, shape in shapes.items():
+        width = int(np.prod(shape, dtype=np.int64))
+        slices[name] = (at, at + width)
+        at += width
+    return _Columns(slices)
+
+
 def import_mujoco_warp():
     """``(warp, mujoco_warp)``, initialised quietly.
 
@@ -89,11 +107,13 @@ class WarpWorlds(Worlds):
         compile_workers: threads that compile the step's Warp modules before the first step
             (:meth:`precompile`); ``None``: one per CPU; 0: none (each module compiles at its
             first launch, one after another).
-        cuda_graph: replay one captured CUDA graph of a control step's kernels (``decimation`` x
-            ``mujoco_warp.step``, kinematics, camera poses) instead of launching each kernel
-            from Python. ``None``: on for a CUDA device, off on the CPU (where Warp has no
-            graphs). The first step launches eagerly (Warp loads its modules then), the second
-            captures; a capture that fails warns once and the worlds go on launching eagerly.
+        cuda_graph: replay captured CUDA graphs instead of launching each kernel from Python:
+            one of a control step's kernels (``decimation`` x ``mujoco_warp.step``, kinematics,
+            camera poses), and one each of a reset's ``reset_data`` (for the persistent world
+            mask), ``forward`` and ``set_const``. ``None``: on for a CUDA device, off on the CPU
+            (where Warp has no graphs). Each sequence launches eagerly the first time (Warp loads
+            its modules then) and is captured the second; a sequence whose capture fails warns
+            once and launches eagerly from then on (the others keep their graphs).
 
     Arrays as :class:`~legoh_rl.envs.physics.BatchedWorlds` (float64 host copies of the float32
     simulation): writes to ``qpos``, ``qvel`` and ``ctrl`` reach the simulation at the next
@@ -131,22 +151,33 @@ class WarpWorlds(Worlds):
         with self.wp.ScopedDevice(self.device):
             self.m = self.mjw.put_model(mjm, batch_sizes={f: N for f in (*PER_WORLD_FIELDS, *_DERIVED_FIELDS)})
             self.d = self.mjw.put_data(mjm, mujoco.MjData(mjm), nworld=N, nconmax=int(nconmax), njmax=int(njmax))
+            self._reset_mask = self.wp.zeros(N, dtype=bool)  # the worlds a reset clears (graph input)
         to_torch = self.wp.to_torch
         self._view = {name: to_torch(getattr(self.d, name)) for name in (*_OUTPUTS, "ctrl", "time", "overflow")}
         self._field_view = {f: to_torch(getattr(self.m, f)) for f in PER_WORLD_FIELDS}
+        self._mask_view = to_torch(self._reset_mask)
         one = mujoco.MjData(mjm)
         for name in (*_OUTPUTS, "ctrl"):  # host copies with the C backend's shapes
             setattr(self, name, np.zeros((N, *getattr(one, name).shape)))
+        # one float32 transfer each way per step: the state in ([qpos | qvel | ctrl]) and the outputs
+        # out ([outputs... | time]), columns as laid out here, through page-locked host buffers on CUDA
+        self._in_cols = _columns({name: getattr(self, name).shape[1:] for name in ("qpos", "qvel", "ctrl")})
+        self._out_cols = _columns({**{name: getattr(self, name).shape[1:] for name in _OUTPUTS}, "time": ()})
+        pin = self.torch_device.type == "cuda"
+        self._host_in = torch.zeros((N, self._in_cols.width), dtype=torch.float32, pin_memory=pin)
+        self._host_out = torch.zeros((N, self._out_cols.width), dtype=torch.float32, pin_memory=pin)
         self._time = np.zeros(N)
         self._per_world: dict[str, np.ndarray] = {}
         self._dirty: set[str] = set()
+        self._sent: dict[str, np.ndarray] = {}  # each per-world field as last uploaded
         self._const_due = False
         self.overflow_total = 0
         if cuda_graph and self.device == "cpu":
             raise ValueError("cuda_graph=True needs a CUDA device; Warp's CPU device has no graphs")
         self.cuda_graph = self.device != "cpu" if cuda_graph is None else bool(cuda_graph)
-        self._graph = None  # the captured control step, once captured
-        self._loaded = False  # an eager control step has run: every module of the step is loaded
+        self._graphs: dict[str, object] = {}  # captured launch sequences by name ("step", "reset", ...)
+        self._loaded: set[str] = set()  # sequences launched eagerly once: their modules are loaded
+        self._eager: set[str] = set()  # sequences whose capture failed: launched eagerly for good
         self.compile_workers = (os.cpu_count() or 1) if compile_workers is None else int(compile_workers)
         if self.compile_workers < 0:
             raise ValueError(f"compile_workers must be >= 0, got {compile_workers!r}")
@@ -160,32 +191,54 @@ class WarpWorlds(Worlds):
 
     # ------------------------------------------------------------------ transfers
     def _upload_state(self) -> None:
-        """Host ``qpos``, ``qvel``, ``ctrl`` and the changed model fields -> the simulation."""
-        v = self._view
-        for name in ("qpos", "qvel", "ctrl"):
-            v[name].copy_(torch.from_numpy(getattr(self, name)))
+        """Host ``qpos``, ``qvel``, ``ctrl`` (one float32 copy) and the rows of the per-world model
+        fields that changed since their last upload -> the simulation."""
+        v, host = self._view, self._host_in.numpy()
+        for name, (a, b) in self._in_cols.slices.items():
+            host[:, a:b] = getattr(self, name).reshape(self.num_worlds, -1)
+        state = self._host_in.to(self.torch_device)
+        for name, (a, b) in self._in_cols.slices.items():
+            v[name].copy_(state[:, a:b].reshape(v[name].shape))
         for field in self._dirty:
-            self._field_view[field].copy_(torch.from_numpy(self._per_world[field]).reshape(self._field_view[field].shape))
+            self._upload_field(field)
         self._dirty.clear()
         if self._const_due:
-            self.mjw.set_const(self.m, self.d)
+            self._launch("set_const", lambda: self.mjw.set_const(self.m, self.d))
             self._const_due = False
 
+    def _upload_field(self, field: str) -> None:
+        """The rows of per-world ``field`` that differ from their last upload -> the simulation
+        (domain randomisation changes the reset worlds' rows; the rest need not cross again)."""
+        values, sent = self._per_world[field], self._sent.get(field)
+        rows = np.arange(self.num_worlds) if sent is None else np.flatnonzero(
+            (values != sent).reshape(self.num_worlds, -1).any(axis=1))
+        if rows.size == 0:
+            return
+        view = self._field_view[field]
+        src = torch.from_numpy(values[rows]).to(dtype=view.dtype).reshape((rows.size, *view.shape[1:]))
+        if rows.size == self.num_worlds:
+            view.copy_(src)
+        else:
+            view[torch.as_tensor(rows, device=self.torch_device)] = src.to(self.torch_device)
+        self._sent[field] = values.copy()
+
     def _download(self, rows: np.ndarray | None = None) -> None:
-        """Simulation outputs -> the host arrays, of worlds ``rows`` (all if None)."""
+        """Simulation outputs -> the host arrays, of worlds ``rows`` (all if None), in one float32
+        copy."""
         sel = slice(None) if rows is None else torch.as_tensor(rows, device=self.torch_device)
-        for name in _OUTPUTS:
-            out = getattr(self, name)
-            src = self._view[name][sel].reshape((-1, *out.shape[1:])).to(torch.float64).cpu().numpy()
+        n = self.num_worlds if rows is None else len(rows)
+        packed = torch.cat([self._view[name][sel].reshape(n, -1).to(torch.float32)
+                            for name in self._out_cols.slices], dim=1)
+        host = self._host_out[:n]
+        host.copy_(packed)
+        host = host.numpy()
+        for name, (a, b) in self._out_cols.slices.items():
+            out = self._time if name == "time" else getattr(self, name)
+            src = host[:, a:b].reshape((n, *out.shape[1:]))
             if rows is None:
                 out[:] = src
             else:
                 out[rows] = src
-        t = self._view["time"][sel].to(torch.float64).cpu().numpy()
-        if rows is None:
-            self._time[:] = t
-        else:
-            self._time[rows] = t
 
     # ------------------------------------------------------------------ compilation
     def record_launches(self, calls) -> dict[int, tuple[object, set]]:
@@ -361,15 +414,17 @@ class WarpWorlds(Worlds):
         mask = np.zeros(self.num_worlds, dtype=bool)
         mask[idx] = True
         with wp.ScopedDevice(self.device):
-            mjw.reset_data(self.m, self.d, reset=wp.array(mask, dtype=bool))
-            self._view["overflow"][torch.as_tensor(mask, device=self.torch_device)] = 0
+            reset = torch.as_tensor(mask, device=self.torch_device)
+            self._mask_view.copy_(reset)
+            self._launch("reset", lambda: mjw.reset_data(self.m, self.d, reset=self._reset_mask))
+            self._view["overflow"][reset] = 0
             self.qpos[idx] = self.home_qpos[idx]
             self.qvel[idx] = self.home_qvel[idx]
             self.ctrl[idx] = self.default_targets
             self._upload_state()
             # positions, velocities, actuation and contact forces of the reset worlds (the others'
             # state is unchanged; only the reset rows are read back)
-            mjw.forward(self.m, self.d)
+            self._launch("forward", lambda: mjw.forward(self.m, self.d))
         self._download(idx)
 
     def step(self) -> np.ndarray:
@@ -381,7 +436,7 @@ class WarpWorlds(Worlds):
         """
         with self.wp.ScopedDevice(self.device):
             self._upload_state()
-            self._advance()
+            self._launch("step", self._launch_control_step)
         self._download()
         overflow = self._view["overflow"].cpu().numpy() != 0
         bad = overflow | self.unstable_rows()
@@ -402,24 +457,28 @@ class WarpWorlds(Worlds):
         mjw.kinematics(self.m, self.d)
         mjw.camlight(self.m, self.d)
 
-    def _advance(self) -> None:
-        """One control step on the device: the captured graph when there is one, else eager
-        launches (capturing the graph once the modules are loaded, when ``cuda_graph``)."""
+    def _launch(self, name: str, launch) -> None:
+        """Run the kernel sequence ``launch`` (a function of no argument) on the device: from its
+        captured CUDA graph ``name`` when there is one, else eagerly, capturing it on its second
+        run (once its modules are loaded) when ``cuda_graph``. A sequence's inputs must live in
+        buffers that stay put (the graph replays the same addresses): the state arrays, the
+        model's fields, the reset mask."""
         wp = self.wp
-        if self.cuda_graph and self._graph is None and self._loaded:
+        if self.cuda_graph and name not in self._graphs and name in self._loaded and name not in self._eager:
             try:  # a capture records the launches without running them
                 with wp.ScopedCapture(device=self.device) as capture:
-                    self._launch_control_step()
-                self._graph = capture.graph
-            except Exception as err:  # noqa: BLE001 - any capture failure: keep stepping eagerly
-                warnings.warn(f"WarpWorlds: CUDA graph capture failed ({type(err).__name__}: {err}); "
-                              "launching the step's kernels eagerly", stacklevel=3)
-                self.cuda_graph = False
-        if self._graph is not None:
-            wp.capture_launch(self._graph)
+                    launch()
+                self._graphs[name] = capture.graph
+            except Exception as err:  # noqa: BLE001 - any capture failure: keep launching this one eagerly
+                warnings.warn(f"WarpWorlds: CUDA graph capture of {name!r} failed ({type(err).__name__}: {err}); "
+                              "launching its kernels eagerly", stacklevel=3)
+                self._eager.add(name)
+        graph = self._graphs.get(name) if self.cuda_graph else None
+        if graph is not None:
+            wp.capture_launch(graph)
         else:
-            self._launch_control_step()
-            self._loaded = True
+            launch()
+            self._loaded.add(name)
 
     # ------------------------------------------------------------------ model parameters
     def per_world(self, field: str) -> np.ndarray:

@@ -49,6 +49,7 @@ class RunLog:
         self.every = int(lcfg.log_every)
         self.start_frames = start_frames
         self.start = time.perf_counter()
+        self._env_time: dict[str, float] = {}  # the env's time_spent at the last log
 
     def log(self, iteration: int, frames: int, data: TensorDictBase, env, stats: dict) -> dict:
         """Add reward-term, episode, curriculum and env figures to ``stats``; queue them when due."""
@@ -66,9 +67,20 @@ class RunLog:
             "env/diverged_total": env.diverged_total,
             "env/bad_action_total": env.bad_action_total,
         })
+        stats.update(self._env_seconds(env))
         if iteration % self.every == 0:
             self.pending.append((frames, dict(stats)))
         return stats
+
+    def _env_seconds(self, env) -> dict:
+        """``env/<part>_s``: seconds the env spent in ``step``, its physics and resets since the
+        last log (none when this process's env did not step: collection in worker processes)."""
+        spent = dict(getattr(env, "time_spent", {}))
+        delta = {k: v - self._env_time.get(k, 0.0) for k, v in spent.items()}
+        self._env_time = spent
+        if not any(delta.values()):
+            return {}
+        return {f"env/{k}_s": v for k, v in delta.items()}
 
     def flush(self) -> None:
         """Write the queued rows (one logger call each) to the logger and ``metrics.jsonl``."""
