@@ -13,6 +13,12 @@ main ones, ``--panels student`` the imitation losses and episode metrics of a un
 ``--panels trails`` plots a whole-benchmark run per category and level (curriculum, success,
 trail completion; grouped success smoothed by episode counts) and the gait feedforward gain.
 ``--compare`` overlays the run directories as separate runs instead, one colour each.
+``--x hours`` plots against training time (the iterations' collection and update seconds summed,
+start-ups and evaluations left out) instead of env steps: how a GPU run's curve compares with a
+CPU run's in time to the same success rate.
+
+    python recipes/plot_curves.py runs/oracle_h1_trails runs/oracle_h1_trails_gpu --compare --x hours \
+        --panels trails -o docs/img/oracle_gpu_vs_cpu.png
 """
 
 from __future__ import annotations
@@ -83,6 +89,35 @@ def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[float]]:
     return rows, starts
 
 
+def training_hours(rows: list[dict]) -> list[float]:
+    """Hours of training up to and including each row (one row per iteration): the running sum of
+    the iterations' ``train/collect_s`` + ``train/update_s``, start-ups not counted. A row logged
+    before ``train/collect_s`` existed counts its frames over the run's rate at that row
+    (``train/fps_total``, the mean since its session started).
+
+    Raises:
+        ValueError: a row with neither (names its step).
+    """
+    out, total = [], 0.0
+    for i, r in enumerate(rows):
+        if r.get("train/collect_s") is not None and r.get("train/update_s") is not None:
+            total += float(r["train/collect_s"]) + float(r["train/update_s"])
+        elif r.get("train/fps_total"):
+            batch = (r["step"] - rows[i - 1]["step"] if i > 0
+                     else rows[1]["step"] - r["step"] if len(rows) > 1 else r["step"])
+            total += batch / float(r["train/fps_total"])
+        else:
+            raise ValueError(f"row at step {r.get('step')} has no train/collect_s and train/update_s (nor "
+                             "train/fps_total): --x hours needs a run that logged its iteration times")
+        out.append(total / 3600.0)
+    return out
+
+
+def with_hours(rows: list[dict]) -> list[dict]:
+    """``rows`` with ``train/hours`` (:func:`training_hours`) added to each."""
+    return [{**r, "train/hours": h} for r, h in zip(rows, training_hours(rows), strict=True)]
+
+
 def running_mean(ys: list[float], k: int) -> list[float]:
     """Mean of the last ``k`` values at each point (fewer at the start)."""
     out, acc = [], 0.0
@@ -104,10 +139,11 @@ def weighted_running_mean(ys: list[float], ws: list[float], k: int) -> list[floa
     return out
 
 
-def _series(run: list[dict], key: str, smooth: int) -> tuple[list, list, list | None]:
-    """Steps, raw values and (when ``smooth`` > 1) their running mean of ``key``; a per-group
-    episode metric (``episode/<group>/<metric>``) is averaged weighted by its group's episodes."""
-    pts = [(r["step"], r[key], r.get(key.rsplit("/", 1)[0] + "/episodes", 1.0) or 0.0) for r in run
+def _series(run: list[dict], key: str, smooth: int, x: str = "step") -> tuple[list, list, list | None]:
+    """``x`` values (env steps), raw values and (when ``smooth`` > 1) their running mean of ``key``;
+    a per-group episode metric (``episode/<group>/<metric>``) is averaged weighted by its group's
+    episodes."""
+    pts = [(r[x], r[key], r.get(key.rsplit("/", 1)[0] + "/episodes", 1.0) or 0.0) for r in run
            if r.get(key) is not None and r[key] == r[key]]
     if not pts:
         return [], [], None
@@ -119,9 +155,10 @@ def _series(run: list[dict], key: str, smooth: int) -> tuple[list, list, list | 
 
 
 def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_starts: list[float] = (),
-         smooth: int = 1, panels: list[tuple] = PANELS) -> Path:
+         smooth: int = 1, panels: list[tuple] = PANELS, x: str = "step") -> Path:
     """Six panels (``panels``: (metrics key or list of keys, title) pairs) of training signals
-    against env steps.
+    against env steps (``x="step"``) or training hours (``x="train/hours"``, rows from
+    :func:`with_hours`).
 
     ``rows``: one run's rows, or ``{label: rows}`` for several runs overlaid (one colour each,
     with a legend). A panel with several keys draws one line per key (one run only)."""
@@ -133,7 +170,7 @@ def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_
                        for key in keys])
         drawn = 0
         for i, (name, run, key) in enumerate(lines):
-            xs, ys, mean = _series(run, key, smooth)
+            xs, ys, mean = _series(run, key, smooth, x)
             if not xs:
                 continue
             drawn += 1
@@ -148,7 +185,7 @@ def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_
         for x in stage_starts:
             ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
         ax.set_title(label)
-        ax.set_xlabel("environment steps")
+        ax.set_xlabel("environment steps" if x == "step" else "training hours")
         ax.grid(alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
@@ -168,6 +205,8 @@ def main() -> None:
     parser.add_argument("--panels", default="default", choices=sorted(PANEL_SETS), help="which six signals")
     parser.add_argument("--compare", action="store_true",
                         help="the run directories are separate runs, overlaid (not stages of one policy)")
+    parser.add_argument("--x", choices=("frames", "hours"), default="frames",
+                        help="x axis: env steps, or training hours (collection + update time)")
     args = parser.parse_args()
     if args.smooth < 1:
         parser.error(f"--smooth must be >= 1, got {args.smooth}")
@@ -175,9 +214,17 @@ def main() -> None:
         rows, starts = {d.name: load(d / "metrics.jsonl") for d in args.run_dirs}, []
     else:
         rows, starts = join_stages([load(d / "metrics.jsonl") for d in args.run_dirs])
+    x = "step"
+    if args.x == "hours":  # stage starts move to the hours of the rows they start at
+        x = "train/hours"
+        if args.compare:
+            rows = {name: with_hours(run) for name, run in rows.items()}
+        else:
+            rows = with_hours(rows)
+            starts = [next(r[x] for r in rows if r["step"] >= s) for s in starts]
     title = args.title or " -> ".join(str(d) for d in args.run_dirs)
     out = plot(rows, args.output or args.run_dirs[-1] / "curves.png", title, starts, args.smooth,
-               PANEL_SETS[args.panels])
+               PANEL_SETS[args.panels], x)
     what = "run(s) overlaid" if args.compare else "stage(s)"
     print(f"{sum(map(len, rows.values())) if args.compare else len(rows)} iterations in {len(args.run_dirs)} {what} -> {out}")
 

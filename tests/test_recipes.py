@@ -252,6 +252,26 @@ def test_plot_curves_overlays_separate_runs(tmp_path, monkeypatch):
     assert [list(line.get_ydata()) for line in ax_sr.lines] == [[40.0, 40.0, 40.0]]  # run a has no values
 
 
+def test_plot_curves_against_training_hours(tmp_path, monkeypatch):
+    """--x hours: each row's x is the running sum of its iterations' collection and update
+    seconds, in hours; a run that did not log them is refused by step."""
+    import plot_curves
+
+    rows = [{"step": 10, "reward/total": 1.0, "train/collect_s": 1800.0, "train/update_s": 0.0},
+            {"step": 20, "reward/total": 2.0, "train/collect_s": 1800.0, "train/update_s": 1800.0}]
+    assert plot_curves.training_hours(rows) == [0.5, 1.5]
+    figs = []
+    monkeypatch.setattr(plot_curves.plt, "close", figs.append)
+    plot_curves.plot({"gpu": plot_curves.with_hours(rows)}, tmp_path / "h.png", "t", x="train/hours")
+    ax = figs[0].axes[0]
+    assert list(ax.lines[0].get_xdata()) == [0.5, 1.5] and ax.get_xlabel() == "training hours"
+    with pytest.raises(ValueError, match="row at step 30 has no train/collect_s"):
+        plot_curves.training_hours(rows + [{"step": 30, "reward/total": 3.0}])
+    # rows from before collect_s was logged: the iteration's frames over the run's rate then
+    older = [{"step": 3600, "train/fps_total": 1.0}, {"step": 7200, "train/fps_total": 2.0}]
+    assert plot_curves.training_hours(older) == [1.0, 1.5]
+
+
 def test_plot_curves_marks_a_panel_the_run_did_not_log(tmp_path, monkeypatch):
     """A panel none of whose keys the run logged (a student has no feedforward anneal) says so."""
     import plot_curves

@@ -170,3 +170,17 @@ def test_every_committed_checkpoint_names_the_experiment_that_made_it():
     for path in committed:
         name = load_checkpoint(path)["meta"].get("experiment")
         assert name and (RECIPES / "config" / "experiment" / f"{name}.yaml").is_file(), path.name
+
+
+def test_the_gpu_oracle_experiment_is_the_cpu_stage_on_warp_with_more_worlds():
+    """oracle_h1_trails_gpu changes where the stage runs (Warp physics, CUDA, 4,096 worlds), not
+    what it trains: the same init, rewards, curriculum, PPO settings, anneal and frame budget."""
+    cpu = OmegaConf.to_container(cfg_of("oracle_ppo", ["experiment=oracle_h1_trails"]), resolve=True)
+    gpu = OmegaConf.to_container(cfg_of("oracle_ppo", ["experiment=oracle_h1_trails_gpu"]), resolve=True)
+    assert (gpu["device"], gpu["env"]["physics"], gpu["env"]["num_envs"]) == ("cuda", "warp", 4096)
+    assert {k: v for k, v in gpu["env"].items() if k not in ("physics", "num_envs")} == {
+        k: v for k, v in cpu["env"].items() if k not in ("physics", "num_envs")}
+    for key in ("ppo", "model", "collector", "feedforward_anneal"):
+        assert gpu[key] == cpu[key], key
+    assert gpu["checkpoint"]["init"] == cpu["checkpoint"]["init"]
+    assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"]  # never the CPU run's directory
