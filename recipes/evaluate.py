@@ -16,6 +16,10 @@ A ``.onnx`` checkpoint is an export of ``recipes/export_policy.py --format onnx`
 oracle's graph, or names a student's pair ``OUT.perception.onnx`` + ``OUT.locomotion.onnx``; it runs
 with onnxruntime (``pip install 'legoh-rl[deploy]'``) in the same loop (docs/deploy.md).
 
+Beside its tables an evaluation leaves ``evaluated_with.json``: the checkpoint file's SHA-256 and
+every setting its figures depend on (:func:`evaluation_record`), so ``recipes/paper_tables.py``
+can take it up instead of evaluating the same checkpoint on the same protocol again.
+
 ``trail_seeds`` repeats the protocol on trail grids generated with each seed (new trails, same
 categories, levels and variants). A deterministic policy on an unrandomised trail has a single
 outcome, so a few variants are a small sample; each trail set counts as one run of the tables'
@@ -24,6 +28,7 @@ mean +- std.
 
 from __future__ import annotations
 
+import json
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported: off-screen rendering
@@ -35,7 +40,7 @@ import hydra  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, OmegaConf  # noqa: E402
 
-from legoh_rl.training.checkpoint import load_checkpoint  # noqa: E402
+from legoh_rl.training.checkpoint import file_digest, load_checkpoint  # noqa: E402
 from legoh_rl.training.device import resolve_device  # noqa: E402
 from legoh_rl.training.evaluation import (  # noqa: E402
     EvalProtocol,
@@ -79,6 +84,21 @@ def trail_seeds_of(cfg: DictConfig) -> list[int]:
     return seeds
 
 
+#: ``evaluate.yaml`` keys that do not change an evaluation's figures (where it runs, what it logs)
+NOT_IN_RECORD = ("checkpoint", "output_dir", "video", "logger", "device", "num_threads")
+#: the file an evaluation leaves beside its tables: :func:`evaluation_record`
+RECORD_NAME = "evaluated_with.json"
+
+
+def evaluation_record(cfg: DictConfig) -> dict:
+    """What an evaluation's figures depend on: the checkpoint's SHA-256 (its name for ``zero``)
+    and the config but for :data:`NOT_IN_RECORD`."""
+    config = OmegaConf.to_container(cfg, resolve=True)
+    path = Path(str(cfg.checkpoint))
+    return {"checkpoint_sha256": file_digest(path) if path.is_file() else str(cfg.checkpoint),
+            "config": {k: v for k, v in config.items() if k not in NOT_IN_RECORD}}
+
+
 def evaluate(cfg: DictConfig) -> dict:
     """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
     if cfg.checkpoint is None:
@@ -93,6 +113,8 @@ def evaluate(cfg: DictConfig) -> dict:
     torch.set_num_threads(1)
     out_dir = Path(cfg.output_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    record = evaluation_record(cfg)
+    (out_dir / RECORD_NAME).unlink(missing_ok=True)  # a stale record must not outlive the tables it described
     episodes = []
     for i, seed in enumerate(seeds):  # trail set i: runs i * runs .. (i + 1) * runs - 1
         print(f"trail set {i + 1}/{len(seeds)} (seed {seed}): {protocol.num_worlds} robots x {protocol.runs} run(s)",
@@ -130,6 +152,7 @@ def evaluate(cfg: DictConfig) -> dict:
     level_scalars = {k: v for k, v in eval_scalars(level_rows).items() if "/overall/" not in k}
     logger.log_metrics({**eval_scalars(rows), **level_scalars}, step=0)
     _log_media(logger, rows, level_rows, plot, video)
+    (out_dir / RECORD_NAME).write_text(json.dumps(record, indent=1) + "\n")
     artefacts = {"table": str(out_dir / "table.md"), "levels": str(out_dir / "table_levels.md"), "csv": str(csv_path), "plot": str(plot),
                  "video": str(video) if video else None}
     print("\nartefacts:\n" + "\n".join(f"  {k:6} {v}" for k, v in artefacts.items() if v))

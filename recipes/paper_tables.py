@@ -32,7 +32,8 @@ under ``<out>/evals/<checkpoint>/``), on the same protocol: the categories x lev
 each of ``--trail-seeds``; for one checkpoint mean ± std is over the trail grids (and runs), as in
 ``evaluate.py``. An evaluation already in ``--out`` for the same checkpoint file and protocol is
 read back rather than run again (``--fresh`` runs everything), so the command can be repeated as
-rows are trained.
+rows are trained; ``--reuse-from DIR`` also takes up ``evaluate.py`` runs made on their own
+(``DIR`` an output folder of one, or a folder of them) whose ``evaluated_with.json`` matches.
 The paper's protocol (512 robots, 5 runs) is larger; the comparison is of the same metrics, not
 of the same sample.
 """
@@ -57,7 +58,6 @@ from omegaconf import OmegaConf
 
 from legoh_rl.envs.metrics import METRIC_NAMES
 from legoh_rl.envs.trails import CATEGORIES, NUM_LEVELS
-from legoh_rl.training.checkpoint import file_digest
 
 CONFIG_DIR = Path(__file__).resolve().parent / "config"
 
@@ -514,17 +514,17 @@ def _check_unique(name: str, values: Sequence) -> None:
         raise ValueError(f"{name} must be distinct, got {values} (repeated: {dup})")
 
 
-#: ``evaluate.yaml`` keys that do not change an evaluation's figures (where it runs, what it logs)
-_NOT_IN_RECORD = ("checkpoint", "output_dir", "video", "logger", "device", "num_threads")
-RECORD_NAME = "evaluated_with.json"
+RECORD_NAME = evaluate_recipe.RECORD_NAME
 
 
-def evaluation_record(path: Path, cfg) -> dict:
-    """What one evaluation's figures depend on: the checkpoint's SHA-256 and the composed
-    ``evaluate.yaml`` config but for :data:`_NOT_IN_RECORD`."""
-    config = OmegaConf.to_container(cfg, resolve=True)
-    return {"checkpoint_sha256": file_digest(path),
-            "config": {k: v for k, v in config.items() if k not in _NOT_IN_RECORD}}
+def find_evaluation(record: dict, folders: Sequence[Path]) -> Path | None:
+    """A folder holding an evaluation made with ``record`` (its :data:`RECORD_NAME` equal to it,
+    beside its ``table.csv``): each of ``folders`` or one of their subfolders; None if none."""
+    for folder in folders:
+        for stamp in [Path(folder) / RECORD_NAME, *sorted(Path(folder).glob(f"*/{RECORD_NAME}"))]:
+            if stamp.is_file() and (stamp.parent / "table.csv").is_file() and json.loads(stamp.read_text()) == record:
+                return stamp.parent
+    return None
 
 
 def read_table_csv(path: Path) -> dict[str, dict[str, Value]]:
@@ -536,15 +536,17 @@ def read_table_csv(path: Path) -> dict[str, dict[str, Value]]:
     return rows
 
 
-def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse: bool = True
-                        ) -> dict[str, dict[str, Value]]:
+def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse: bool = True,
+                        reuse_from: Sequence[Path] = ()) -> dict[str, dict[str, Value]]:
     """``recipes/evaluate.py``'s ``evaluate`` on one checkpoint, its config composed from
     ``evaluate.yaml`` with ``settings``.
 
-    Each evaluation leaves :data:`RECORD_NAME` beside its ``table.csv`` (:func:`evaluation_record`);
-    with ``reuse`` a folder whose record matches (the same checkpoint file and protocol) is read
-    back instead of evaluated again, so the tables can be rewritten as rows are added without
-    re-running the others (``--fresh``: evaluate everything).
+    Each evaluation leaves :data:`RECORD_NAME` beside its ``table.csv``
+    (``evaluate.evaluation_record``); with ``reuse`` a folder whose record matches (the same
+    checkpoint file and protocol), ``output_dir`` or one found in ``reuse_from`` (an
+    ``evaluate.py`` run's output folder, or a folder of them), is read back instead of evaluated
+    again, so the tables can be rewritten as rows are added without re-running the others
+    (``--fresh``: evaluate everything).
 
     Returns:
         the aggregate: {group: {metric: (mean, std)}}, groups the categories and ``"overall"``.
@@ -552,13 +554,15 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse:
     with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base=None):
         cfg = compose(config_name="evaluate")
     cfg = OmegaConf.merge(cfg, settings.overrides(path, output_dir))
-    record = evaluation_record(path, cfg)
-    stamp, table = output_dir / RECORD_NAME, output_dir / "table.csv"
-    if reuse and stamp.is_file() and table.is_file() and json.loads(stamp.read_text()) == record:
-        print(f"{path}: reusing the evaluation in {output_dir} (same checkpoint and protocol)", flush=True)
-        return read_table_csv(table)
+    record = evaluate_recipe.evaluation_record(cfg)
+    stamp = output_dir / RECORD_NAME
+    found = find_evaluation(record, [output_dir, *reuse_from]) if reuse else None
+    if found is not None:
+        print(f"{path}: reusing the evaluation in {found} (same checkpoint and protocol)", flush=True)
+        return read_table_csv(found / "table.csv")
     stamp.unlink(missing_ok=True)  # a stale record must not outlive the evaluation it described
     rows = evaluate_recipe.evaluate(cfg)["rows"]
+    stamp.parent.mkdir(parents=True, exist_ok=True)
     stamp.write_text(json.dumps(record, indent=1) + "\n")
     return rows
 
@@ -788,6 +792,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--only-paper", action="store_true", help="write the paper's numbers alone; evaluate nothing")
     p.add_argument("--fresh", action="store_true",
                    help="evaluate every checkpoint again, even where --out holds its evaluation on this protocol")
+    p.add_argument("--reuse-from", type=Path, nargs="+", default=[],
+                   help="evaluate.py output folders (or folders of them) whose evaluations on this protocol to take up")
     return p
 
 
@@ -832,7 +838,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                "Each method: a row of ours, the paper's under it. ↑: higher is better, ↓: lower."]
     keys = [r.key for t in tables for r in t.rows]
     results = run_rows(keys, args.checkpoints, settings, args.out,
-                       evaluate_fn=functools.partial(evaluate_checkpoint, reuse=not args.fresh))
+                       evaluate_fn=functools.partial(evaluate_checkpoint, reuse=not args.fresh,
+                                                     reuse_from=tuple(args.reuse_from)))
     written = write_tables(tables, results, args.out, "\n".join(header))
     print("\n" + written["tables.md"].read_text())
     print("written:\n" + "\n".join(f"  {p}" for p in written.values()))

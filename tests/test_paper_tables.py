@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "recipes"))
@@ -362,6 +363,22 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     assert pt.main(argv + ["--fresh"]) == 0 and calls == [1]
     assert pt.main(argv) == 0 and calls == [1]  # the record is now the fresh evaluation's
     assert pt.main(argv + ["--robots-per-cell", "2"]) == 0 and calls == [1, 2]
+    # an evaluate.py run made on its own (its record written by evaluate.py) is taken up with
+    # --reuse-from by a new --out, on the same protocol only
+    alone = tmp_path / "alone"
+    monkeypatch.undo()
+    with initialize_config_dir(config_dir=str(pt.CONFIG_DIR), version_base=None):
+        cfg = compose(config_name="evaluate", overrides=[
+            f"checkpoint={ck / 'oracle_h1.pt'}", "trail_seeds=[9101]", "robots_per_cell=1", "variants=1",
+            "categories=[randommix]", "levels=[0]", "video=false", "num_threads=1", "device=cpu",
+            f"output_dir={alone / 'oracle'}", "logger.backend=csv"])
+    pt.evaluate_recipe.evaluate(cfg)  # the real evaluate.py, as its command line runs it
+    assert json.loads((alone / "oracle" / pt.RECORD_NAME).read_text())["checkpoint_sha256"] == record["checkpoint_sha256"]
+    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", fake_evaluate)
+    fresh_out = ["--out", str(tmp_path / "tables2")]
+    assert pt.main(argv + fresh_out + ["--reuse-from", str(alone)]) == 0 and calls == [1, 2]
+    assert pt.main(argv + ["--out", str(tmp_path / "tables3"), "--reuse-from", str(alone), "--variants", "2"]) == 0
+    assert calls == [1, 2, 1]  # another protocol: evaluated, not taken up
 
 
 def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
