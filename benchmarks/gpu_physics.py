@@ -14,7 +14,10 @@ the download of outputs), and the largest qpos difference between the graph's an
 step from one state ("graph diff"). In the "warp" column a student's depth is cast by Warp on the
 device (``depth_camera.source=warp``); the "warp+host depth" column is the same env with the host
 march instead (``source=host``, what ``auto`` picks), the comparison that decides which depth path
-is faster. The C backend and the host march run on ``--threads`` CPU threads.
+is faster. The Warp columns run the env's device-resident step (``env.resident``, on by default on
+a CUDA device); the "warp host step" column is the same env with ``resident=False`` (the state
+copied to the host and back every step), the comparison that measures what the resident step
+gains. The C backend and the host march run on ``--threads`` CPU threads.
 """
 
 from __future__ import annotations
@@ -117,7 +120,8 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads or torch.get_num_threads())
     print(f"device={args.device} robot={args.robot} threads={torch.get_num_threads()}")
-    print(f"{'mode':8} {'N':>6} {'mujoco env/s':>13} {'warp env/s':>11} {'warp+host depth/s':>18} "
+    print(f"{'mode':8} {'N':>6} {'mujoco env/s':>13} {'warp env/s':>11} {'warp host step/s':>17} "
+          f"{'warp+host depth/s':>18} "
           f"{'physics eager/s':>16} {'physics graph/s':>16} {'warp/mujoco':>12} {'in physics':>11} "
           f"{'transfers':>10} {'graph diff':>11}", flush=True)
     for mode in args.modes:
@@ -125,12 +129,18 @@ def main() -> None:
             rates, shares = {}, {}
             # the student's depth: the host march on C MuJoCo; Warp's rays on the device (the warp
             # default) and, beside it, the host march on Warp's state (depth_camera.source=host)
-            runs = [("mujoco", "host"), ("warp", "warp")] + ([("warp", "host")] if mode == "student" else [])
-            for physics, source in runs:
+            # runs: (physics, depth source, resident: None = the default for the device)
+            runs = [("mujoco", "host", None), ("warp", "warp", None), ("warp", "warp", False)]
+            runs += [("warp", "host", None)] if mode == "student" else []
+            for physics, source, resident in runs:
                 env = HikingEnv(HikingEnvConfig(robot=args.robot, num_envs=n, mode=mode, physics=physics,
-                                                num_threads=args.threads,
+                                                num_threads=args.threads, resident=resident,
                                                 depth_camera=DepthCameraConfig(source=source),
                                                 device=args.device if physics == "warp" else "cpu"))
+                if resident is False:
+                    rates["host step"], _ = env_rate(env, args.seconds, warmup=args.warmup)
+                    del env
+                    continue
                 rates[physics, source], shares[physics, source] = env_rate(env, args.seconds, warmup=args.warmup)
                 if (physics, source) == ("warp", "warp"):
                     share = transfer_share(env, min(args.seconds, 3.0))
@@ -138,7 +148,8 @@ def main() -> None:
                     eager, graph = warp_rates(env.worlds, args.seconds)
                 del env
             host_depth = f"{rates['warp', 'host']:18.0f}" if ("warp", "host") in rates else f"{'-':>18}"
-            print(f"{mode:8} {n:6d} {rates['mujoco', 'host']:13.0f} {rates['warp', 'warp']:11.0f} {host_depth} "
+            print(f"{mode:8} {n:6d} {rates['mujoco', 'host']:13.0f} {rates['warp', 'warp']:11.0f} "
+                  f"{rates['host step']:17.0f} {host_depth} "
                   f"{eager:16.0f} {graph:16.0f} {rates['warp', 'warp'] / rates['mujoco', 'host']:12.2f} "
                   f"{shares['warp', 'warp']:11.2f} {share:10.2f} {diff:11.2e}", flush=True)
 

@@ -8,10 +8,14 @@ from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DomainRandConfig
 from legoh_rl.envs.sensors import DepthCameraConfig
 
-__all__ = ["HikingEnvConfig", "MODES", "PHYSICS"]
+__all__ = ["HikingEnvConfig", "MODES", "PHYSICS", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
 
 MODES = ("oracle", "student", "eval")
 PHYSICS = ("mujoco", "warp")  # env.physics: C MuJoCo threads or MuJoCo Warp
+# Observation scales (legged_gym's): keep every input of order one.
+ANG_VEL_SCALE = 0.25
+DOF_VEL_SCALE = 0.05
+LIN_VEL_SCALE = 2.0
 
 
 @dataclass
@@ -50,6 +54,12 @@ class HikingEnvConfig:
         physics: the physics backend: ``mujoco`` (C MuJoCo in threads, ``mujoco.batch``) or
             ``warp`` (MuJoCo Warp on ``device``; needs ``pip install 'legoh-rl[gpu]'``;
             docs/gpu_physics.md).
+        resident: with ``physics="warp"``, keep the step on ``device``: the state is read from
+            the simulation's own arrays, and observations, rewards, terminations and episode
+            metrics are torch tensors there, with no copy through the host in a step (resets,
+            the curriculum and a host-marched depth image still cross). ``None``: on when
+            ``physics="warp"`` and ``device`` is a CUDA device; ``True`` also runs it on Warp's
+            CPU device (the tests' parity checks).
         action_clip: actions are clipped to [-clip, clip] (the action spec's bounds).
         spawn_jitter_xy, spawn_jitter_yaw: random spawn offsets in training (m, rad).
         swing_height: target lift of a moving foot for the ``feet_clearance`` term, m.
@@ -103,6 +113,7 @@ class HikingEnvConfig:
     decimation: int = 4
     num_threads: int | None = None
     physics: str = "mujoco"
+    resident: bool | None = None
     action_clip: float = 5.0
     spawn_jitter_xy: float = 0.2
     spawn_jitter_yaw: float = 0.3
@@ -148,6 +159,9 @@ class HikingEnvConfig:
                              f"(got gait_period={self.gait_period!r})")
         if self.physics not in PHYSICS:
             raise ValueError(f"unknown physics {self.physics!r}; valid: {list(PHYSICS)}")
+        if self.resident and self.physics != "warp":
+            raise ValueError(f"resident=True keeps the step on the simulation's device: it needs physics='warp', "
+                             f"got physics={self.physics!r}")
         if self.depth_camera.source == "warp" and self.physics != "warp":
             raise ValueError(f"depth_camera.source='warp' casts the simulation's own rays: it needs physics='warp', "
                              f"got physics={self.physics!r}")
@@ -170,6 +184,13 @@ class HikingEnvConfig:
     def depth_enabled(self) -> bool:
         """Whether the depth camera is rendered."""
         return self.mode != "oracle" if self.depth is None else bool(self.depth)
+
+    @property
+    def step_on_device(self) -> bool:
+        """Whether the step runs device-resident (``resident``, its ``None`` resolved)."""
+        if self.resident is None:
+            return self.physics == "warp" and str(self.device).startswith("cuda")
+        return bool(self.resident)
 
     @property
     def is_eval(self) -> bool:

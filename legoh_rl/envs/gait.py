@@ -11,6 +11,9 @@ reference-joint terms of Humanoid-Gym and Unitree's RL Gym.
 from __future__ import annotations
 
 import numpy as np
+from array_api_compat import device
+
+from legoh_rl.envs.array_api import namespace_of
 
 __all__ = ["stance_mask", "swing_joints", "swing_reference"]
 
@@ -18,9 +21,11 @@ __all__ = ["stance_mask", "swing_joints", "swing_reference"]
 DEAD_ZONE = 0.1
 
 
-def stance_mask(phase: np.ndarray, stance: float) -> np.ndarray:
-    """(N, 2) bool: which feet (left, right) the clock puts on the ground at ``phase`` (N,) in [0, 1)."""
-    legs = np.stack([phase, (phase + 0.5) % 1.0], axis=1)
+def stance_mask(phase, stance: float):
+    """(N, 2) bool: which feet (left, right) the clock puts on the ground at ``phase`` (N,) in [0, 1)
+    (a numpy array or a torch tensor; the result is of the same kind)."""
+    xp = namespace_of(phase)
+    legs = xp.stack([phase, xp.remainder(phase + 0.5, 1.0)], axis=1)
     return legs < stance
 
 
@@ -44,19 +49,21 @@ def swing_joints(leg_joints: tuple[str, ...]) -> np.ndarray:
     return out
 
 
-def swing_reference(phase: np.ndarray, joints: np.ndarray, num_joints: int, amplitude: float) -> np.ndarray:
-    """(N, A) joint offsets from the default pose that the clock asks for at ``phase`` (N,).
+def swing_reference(phase, joints: np.ndarray, num_joints: int, amplitude: float):
+    """(N, A) joint offsets from the default pose that the clock asks for at ``phase`` (N,) (a numpy
+    array or a torch tensor; the result is of the same kind, dtype and device).
 
     The swinging leg (left while sin 2 pi phi < 0, right while > 0, i.e. the leg the clock has
     out of stance) folds by ``s = amplitude * |sin 2 pi phi|``: hip pitch -s (thigh forward),
     knee +2s, ankle pitch -s, which lifts the foot while keeping its sole level (H1 and G1 share
     these signs). The stance leg, and both legs while |sin| < 0.1, keep the default pose.
     """
-    s = np.sin(2.0 * np.pi * phase)
-    s = np.where(np.abs(s) < DEAD_ZONE, 0.0, s)
-    swing = np.stack([np.maximum(-s, 0.0), np.maximum(s, 0.0)], axis=1) * amplitude  # (N, 2) left, right
-    out = np.zeros((phase.shape[0], num_joints))
+    xp = namespace_of(phase)
+    s = xp.sin(2.0 * np.pi * phase)
+    s = xp.where(xp.abs(s) < DEAD_ZONE, 0.0, s)
+    swing = xp.stack([xp.maximum(-s, 0.0), xp.maximum(s, 0.0)], axis=1) * amplitude  # (N, 2) left, right
+    out = xp.zeros((phase.shape[0], num_joints), dtype=phase.dtype, device=device(phase))
     for leg in range(2):
         for j, gain in enumerate((-1.0, 2.0, -1.0)):
-            out[:, joints[leg, j]] = gain * swing[:, leg]
+            out[:, int(joints[leg, j])] = gain * swing[:, leg]
     return out

@@ -9,11 +9,13 @@ coordinate transform.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 
 import numpy as np
 import torch
 
+from legoh_rl.envs.array_api import namespace_of
 from legoh_rl.envs.native.build import load_library
 
 __all__ = ["HeightMap", "WorldSampler", "as_grid_sampler", "coarse_max_map", "torch_height_fn", "yaw_frame_points"]
@@ -51,6 +53,15 @@ class HeightMap:
         self._coarse: np.ndarray | None = None
         self.sx = 2.0 / ((nx - 1) * resolution)
         self.sy = 2.0 / ((ny - 1) * resolution)
+
+    def to(self, device: torch.device | str) -> HeightMap:
+        """This map with its ``image`` on ``device`` (a shallow copy; itself when already there),
+        for lookups by tensors there; ``heights`` and the native kernels stay on the host."""
+        if self.image.device == torch.device(device):
+            return self
+        other = copy.copy(self)
+        other.image = self.image.to(device)
+        return other
 
     def to_grid(self, xy: torch.Tensor) -> torch.Tensor:
         """World points (..., 2) -> ``grid_sample`` coordinates (..., 2) (column, row in [-1, 1])."""
@@ -123,13 +134,14 @@ class HeightMap:
         return (*self.heights.shape, self.x0, self.y0, 1.0 / self.resolution)
 
 
-def yaw_frame_points(xy: np.ndarray, yaw: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+def yaw_frame_points(xy, yaw, offsets):
     """World xy of points ``offsets`` (K, 2) (forward, left) in the yaw frames of robots at ``xy``
-    (N, 2) with headings ``yaw`` (N,): (N, K, 2)."""
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    (N, 2) with headings ``yaw`` (N,): (N, K, 2) (numpy arrays, or torch tensors on one device)."""
+    xp = namespace_of(xy)
+    c, s = xp.cos(yaw)[:, None], xp.sin(yaw)[:, None]
     px = xy[:, :1] + c * offsets[:, 0] - s * offsets[:, 1]
     py = xy[:, 1:2] + s * offsets[:, 0] + c * offsets[:, 1]
-    return np.stack([px, py], axis=-1)
+    return xp.stack([px, py], axis=-1)
 
 
 def coarse_max_map(heights: np.ndarray, block: int) -> np.ndarray:

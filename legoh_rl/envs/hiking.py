@@ -32,7 +32,7 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from legoh_rl.envs.body_state import BodyStateReader
-from legoh_rl.envs.config import HikingEnvConfig
+from legoh_rl.envs.config import ANG_VEL_SCALE, DOF_VEL_SCALE, LIN_VEL_SCALE, HikingEnvConfig
 from legoh_rl.envs.curriculum import Curriculum, world_categories
 from legoh_rl.envs.gait import swing_joints, swing_reference
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
@@ -40,6 +40,7 @@ from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.randomization import DomainRandConfig, DomainRandomizer
 from legoh_rl.envs.render import DEFAULT_HEIGHT, DEFAULT_WIDTH, TrackingCamera, WorldRenderer
+from legoh_rl.envs.resident import ResidentStep
 from legoh_rl.envs.rewards import RewardState, compute_rewards, reward_weights
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
 from legoh_rl.envs.sensors import (
@@ -54,10 +55,6 @@ from legoh_rl.envs.warp_physics import WarpWorlds
 
 __all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
 
-# Observation scales (legged_gym's): keep every input of order one.
-ANG_VEL_SCALE = 0.25
-DOF_VEL_SCALE = 0.05
-LIN_VEL_SCALE = 2.0
 _CPU = torch.device("cpu")
 
 
@@ -149,7 +146,7 @@ class HikingEnv(EnvBase):
         self.built = build_model(self.robot, terrain=trails, timestep=cfg.timestep)
         if cfg.physics == "warp":
             self.worlds = WarpWorlds(self.built, N, decimation=cfg.decimation, num_threads=cfg.num_threads,
-                                     device=cfg.device)
+                                     device=cfg.device, resident=cfg.step_on_device)
         else:
             self.worlds = BatchedWorlds(self.built, N, decimation=cfg.decimation, num_threads=cfg.num_threads)
         self.dt = self.worlds.dt
@@ -195,6 +192,8 @@ class HikingEnv(EnvBase):
         self.metrics = EpisodeMetrics(N)
         self._alloc_buffers(N, m)
         self._make_specs()
+        #: the device-resident step (``cfg.resident``), or None: the host step
+        self.resident = ResidentStep(self) if cfg.step_on_device else None
 
     # ------------------------------------------------------------------ buffers and specs
     def _alloc_buffers(self, N: int, m: mujoco.MjModel) -> None:
@@ -314,10 +313,18 @@ class HikingEnv(EnvBase):
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").detach().cpu().numpy().reshape(N).astype(bool, copy=False)
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
+        if self.resident is not None:
+            self.resident.settle_curriculum(ids)
         self._reset_worlds(ids)
         self.tick[ids] = True  # a reset world gets a fresh depth frame
         if self.camera is not None:
             self._render_depth(np.isin(np.arange(N), ids))
+        if self.resident is not None:
+            no = torch.zeros(N, dtype=torch.bool, device=self.resident.device)
+            out = self.resident.to_td(self.resident.refresh_rows(ids), self.resident.empty_episode(), info=(no, no),
+                                      flags=(no, no, no))
+            self.time_spent["reset"] += time.perf_counter() - started
+            return out
         if not self._obs or ids.size == N:
             obs = self._full_observations()
         else:  # only the reset worlds changed since the last step: refresh their rows
@@ -349,6 +356,10 @@ class HikingEnv(EnvBase):
             raise ValueError(f"action must have shape {(N, A)} (num_envs, num_actions), got {tuple(action.shape)}")
         if not action.dtype.is_floating_point:
             raise TypeError(f"action must be a floating-point tensor, got dtype {action.dtype}")
+        if self.resident is not None:
+            out = self.resident.step(action)
+            self.time_spent["step"] += time.perf_counter() - started
+            return out
         a = action.detach().to("cpu", torch.float64).numpy()  # any float dtype (bfloat16 has no numpy twin)
         bad_action = self._no_worlds
         if not np.isfinite(a.sum()):  # documented: rows with NaN/inf are replaced by zeros and counted
@@ -447,7 +458,8 @@ class HikingEnv(EnvBase):
         qpos[:, 6] = np.sin(yaw / 2)
         self.randomizer.randomize(ids, self.rng)
         self.worlds.reset(ids, qpos=qpos)
-        self.feet_xy_prev[ids] = self.worlds.xpos[ids][:, self.built.foot_body_ids, :2]
+        if self.resident is None:
+            self.feet_xy_prev[ids] = self.worlds.xpos[ids][:, self.built.foot_body_ids, :2]
 
         self.episode_step[ids] = 0
         self.action[ids] = 0.0
@@ -458,6 +470,8 @@ class HikingEnv(EnvBase):
         self.feet_air_time[ids] = 0.0
         self.last_contact[ids] = False
         self.metrics.reset(ids)
+        if self.resident is not None:
+            self.resident.reset_rows(ids)
 
     def _tiles_for(self, level: int, category: int) -> np.ndarray:
         tiles = self._tiles_by.get((level, category))
@@ -498,6 +512,8 @@ class HikingEnv(EnvBase):
         ``goal_dist`` (N,) m to P_B, ...) and ``gait_phase`` (N,) or None. Analysis tools
         (recipes/gait_stats.py) read it too.
         """
+        if self.resident is not None:
+            return self.resident.host_state(ids)
         state = self.body.read(ids, self.end)
         phase = self.gait_phase()
         state["gait_phase"] = None if phase is None else phase[slice(None) if ids is None else ids]
@@ -601,6 +617,7 @@ class HikingEnv(EnvBase):
             return
         ids = np.flatnonzero(which)
         cam = self.built.camera_id
+        self.worlds.refresh_host(ids)  # (a resident simulation's camera poses)
         # camera pose at the current state (kinematics of the last call)
         pos = self.worlds.cam_xpos[ids, cam]
         mat = self.worlds.cam_xmat[ids, cam].reshape(-1, 3, 3)

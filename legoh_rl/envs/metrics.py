@@ -21,6 +21,9 @@ Definitions (docs/metrics.md has the reasoning):
 from __future__ import annotations
 
 import numpy as np
+import torch
+
+from legoh_rl.envs.array_api import namespace_of
 
 __all__ = ["METRIC_NAMES", "EpisodeMetrics"]
 
@@ -28,13 +31,24 @@ METRIC_NAMES = ("success", "trail_completion", "traverse_rate", "mev", "ttf", "t
 
 
 class EpisodeMetrics:
-    """Per-world accumulators for N worlds."""
+    """Per-world accumulators for N worlds: numpy arrays, or torch tensors on ``device`` (a
+    device-resident step's, docs/gpu_physics.md); the inputs of each method are of the same kind.
 
-    def __init__(self, num_worlds: int) -> None:
+    Args:
+        num_worlds: N.
+        device: ``None`` for numpy (float64) accumulators; a torch device for tensors (float32).
+    """
+
+    def __init__(self, num_worlds: int, device: torch.device | str | None = None) -> None:
         n = num_worlds
-        self.contact_samples = np.zeros(n)
-        self.edge_samples = np.zeros(n)
-        self.goals_passed = np.zeros(n, dtype=np.int64)
+        if device is None:
+            self.contact_samples = np.zeros(n)
+            self.edge_samples = np.zeros(n)
+            self.goals_passed = np.zeros(n, dtype=np.int64)
+        else:
+            self.contact_samples = torch.zeros(n, device=device)
+            self.edge_samples = torch.zeros(n, device=device)
+            self.goals_passed = torch.zeros(n, dtype=torch.int64, device=device)
 
     def reset(self, ids: np.ndarray) -> None:
         """Start new episodes in worlds ``ids``."""
@@ -44,8 +58,9 @@ class EpisodeMetrics:
 
     def record_step(self, foot_contact: np.ndarray, foot_on_edge: np.ndarray) -> None:
         """Accumulate one control step: (N, 2) bool foot contacts, (N, 2) bool contact on edges."""
-        self.contact_samples += foot_contact.sum(axis=1)
-        self.edge_samples += (foot_contact & foot_on_edge).sum(axis=1)
+        xp = namespace_of(foot_contact)
+        self.contact_samples += xp.sum(xp.astype(foot_contact, self.contact_samples.dtype), axis=1)
+        self.edge_samples += xp.sum(xp.astype(foot_contact & foot_on_edge, self.edge_samples.dtype), axis=1)
 
     def finish(
         self,
@@ -55,7 +70,8 @@ class EpisodeMetrics:
         trail_length: np.ndarray,
         num_goals: np.ndarray,
     ) -> dict[str, np.ndarray]:
-        """The six metrics of episodes ending now, all (N,) float64 (meaningful where done).
+        """The six metrics of episodes ending now, all (N,) floats (meaningful where done): float64
+        arrays, or float32 tensors on the accumulators' device.
 
         Args:
             success: (N,) bool, reached P_B.
@@ -64,12 +80,14 @@ class EpisodeMetrics:
             trail_length: (N,) |P_B - P_A|, m.
             num_goals: (N,) number of expert goals of each world's trail.
         """
-        tr = np.where(success, 100.0, 100.0 * np.clip(1.0 - final_goal_dist / np.maximum(trail_length, 1e-6), 0.0, 1.0))
+        xp = namespace_of(final_goal_dist)
+        dtype = self.contact_samples.dtype
+        tr = xp.where(success, 100.0, 100.0 * xp.clip(1.0 - final_goal_dist / xp.maximum(trail_length, 1e-6), 0.0, 1.0))
         return {
-            "success": 100.0 * success.astype(np.float64),
-            "trail_completion": 100.0 * self.goals_passed / np.maximum(num_goals, 1),
+            "success": 100.0 * xp.astype(success, dtype),
+            "trail_completion": 100.0 * xp.astype(self.goals_passed, dtype) / xp.astype(xp.maximum(num_goals, 1), dtype),
             "traverse_rate": tr,
-            "mev": 100.0 * self.edge_samples / np.maximum(self.contact_samples, 1.0),
-            "ttf": episode_time.astype(np.float64),
-            "time_to_reach": np.where(success, episode_time, np.nan),
+            "mev": 100.0 * self.edge_samples / xp.maximum(self.contact_samples, 1.0),
+            "ttf": xp.astype(episode_time, dtype),
+            "time_to_reach": xp.where(success, xp.astype(episode_time, dtype), float("nan")),
         }

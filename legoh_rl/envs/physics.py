@@ -148,6 +148,15 @@ class Worlds(ABC):
             raise ValueError(f"joint targets must have shape {expected}, got {q_target.shape}")
         self.ctrl[:, self.built.actuator_ids] = q_target
 
+    def set_base_xy_velocity(self, ids: np.ndarray, velocity: np.ndarray) -> None:
+        """Set the base's world xy velocity of worlds ``ids`` (n,) to ``velocity`` (n, 2) m/s (a push)."""
+        self.qvel[ids, 0:2] = velocity
+
+    def refresh_host(self, rows: np.ndarray | None = None) -> None:
+        """Make the host arrays of worlds ``rows`` current (they always are here; a device-resident
+        backend copies them on request)."""
+        return None
+
     def nominal(self, field: str) -> np.ndarray:
         """The model's value of ``field`` before any per-world change."""
         if field not in self._nominal:

@@ -129,7 +129,7 @@ class DomainRandomizer:
             return
         ids = np.flatnonzero(due)
         v = self.cfg.push_max_vel_xy
-        self.worlds.qvel[ids, 0:2] = rng.uniform(-v, v, size=(ids.size, 2))
+        self.worlds.set_base_xy_velocity(ids, rng.uniform(-v, v, size=(ids.size, 2)))
 
     def delay_steps(self, global_steps: int) -> int:
         """Action delay in control steps in force after ``global_steps`` env steps."""

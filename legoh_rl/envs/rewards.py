@@ -1,6 +1,8 @@
 """The paper's reward table (appendix, "Rewards' definition and weight") as named functions.
 
-Each term is a function ``reward_<name>(s: RewardState) -> (N,)`` of the batched state, unweighted;
+Each term is a function ``reward_<name>(s: RewardState) -> (N,)`` of the batched state, unweighted,
+written once for numpy arrays and torch tensors (the array API: numpy's own namespace, or
+array_api_compat's for torch, on the tensors' device);
 :data:`PAPER_WEIGHTS` holds the table's weights and :func:`compute_rewards` returns every
 weighted term (for logging) and their sum. As in legged_gym, which the paper's Isaac Gym code
 builds on, weights are multiplied by the control period ``dt`` so that the return does not depend
@@ -62,6 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from legoh_rl.envs.array_api import namespace_of
 from legoh_rl.envs.gait import stance_mask
 
 __all__ = [
@@ -75,6 +78,14 @@ __all__ = [
 ]
 
 EPS = 1e-5
+
+
+_xp = namespace_of  # numpy for the host step, array_api_compat's torch for a device-resident one
+
+
+def _float(x, s: RewardState):
+    """``x`` (bool or int) in the state's float dtype (that of ``s.q``: float64 on the host)."""
+    return _xp(x).astype(x, s.q.dtype)
 
 
 @dataclass
@@ -126,149 +137,155 @@ class RewardState:
             raise ValueError(f"this reward term needs RewardState fields {missing}, which are None")
 
 
-def _sq_sum(x: np.ndarray) -> np.ndarray:
-    """Sum of squares over the last axis, (..., K) -> (...) (one pass; ``np.sum(x**2, -1)``)."""
-    return np.einsum("...i,...i->...", x, x)
+def _sq_sum(x):
+    """Sum of squares over the last axis, (..., K) -> (...) (one pass: ``vecdot``)."""
+    return _xp(x).vecdot(x, x, axis=-1)
 
 
-def reward_tracking_goal_vel(s: RewardState) -> np.ndarray:
+def reward_tracking_goal_vel(s: RewardState):
     """min(v_target . v_t, cmd_x) / (cmd_x + eps): speed toward the current expert goal."""
-    along = np.einsum("ij,ij->i", s.goal_dir_w, s.lin_vel_w[:, :2])
-    return np.minimum(along, s.cmd_speed) / (s.cmd_speed + EPS)
+    xp = _xp(s.lin_vel_w)
+    along = xp.vecdot(s.goal_dir_w, s.lin_vel_w[:, :2], axis=1)
+    return xp.minimum(along, s.cmd_speed) / (s.cmd_speed + EPS)
 
 
-def reward_tracking_yaw(s: RewardState) -> np.ndarray:
+def reward_tracking_yaw(s: RewardState):
     """exp(-|psi_target - psi_t|), the yaw error wrapped to [-pi, pi]."""
-    target = np.arctan2(s.goal_dir_w[:, 1], s.goal_dir_w[:, 0])
-    err = np.mod(target - s.yaw + np.pi, 2.0 * np.pi) - np.pi
-    return np.exp(-np.abs(err))
+    xp = _xp(s.yaw)
+    target = xp.atan2(s.goal_dir_w[:, 1], s.goal_dir_w[:, 0])
+    err = xp.remainder(target - s.yaw + np.pi, 2.0 * np.pi) - np.pi
+    return xp.exp(-xp.abs(err))
 
 
-def reward_lin_vel_z(s: RewardState) -> np.ndarray:
+def reward_lin_vel_z(s: RewardState):
     """v_z^2."""
     return s.lin_vel_w[:, 2] ** 2
 
 
-def reward_ang_vel_xy(s: RewardState) -> np.ndarray:
+def reward_ang_vel_xy(s: RewardState):
     """w_x^2 + w_y^2 (base frame)."""
     return _sq_sum(s.ang_vel_b[:, :2])
 
 
-def reward_orientation(s: RewardState) -> np.ndarray:
+def reward_orientation(s: RewardState):
     """g_x^2 + g_y^2 of gravity in the base frame: zero when upright."""
     return _sq_sum(s.gravity_b[:, :2])
 
 
-def reward_dof_acc(s: RewardState) -> np.ndarray:
+def reward_dof_acc(s: RewardState):
     """sum ((dq_{t-1} - dq_t) / dt)^2."""
     return _sq_sum(s.dq_prev - s.dq) / s.dt**2
 
 
-def reward_collision(s: RewardState) -> np.ndarray:
+def reward_collision(s: RewardState):
     """Number of penalised (non-foot) bodies with a contact force above 0.1 N."""
-    return np.count_nonzero(_sq_sum(s.penalised_force) > 0.1**2, axis=1).astype(np.float64)
+    return _float(_xp(s.penalised_force).count_nonzero(_sq_sum(s.penalised_force) > 0.1**2, axis=1), s)
 
 
-def reward_action_rate(s: RewardState) -> np.ndarray:
+def reward_action_rate(s: RewardState):
     """||a_{t-1} - a_t|| (L2 norm, as the paper writes it)."""
-    return np.sqrt(_sq_sum(s.action_prev - s.action))
+    return _xp(s.action).sqrt(_sq_sum(s.action_prev - s.action))
 
 
-def reward_delta_torques(s: RewardState) -> np.ndarray:
+def reward_delta_torques(s: RewardState):
     """sum (tau_t - tau_{t-1})^2."""
     return _sq_sum(s.torques - s.torques_prev)
 
 
-def reward_torques(s: RewardState) -> np.ndarray:
+def reward_torques(s: RewardState):
     """sum tau_t^2."""
     return _sq_sum(s.torques)
 
 
-def reward_hip_pos(s: RewardState) -> np.ndarray:
+def reward_hip_pos(s: RewardState):
     """sum over hip yaw/roll joints of (q - q_default)^2."""
     return _sq_sum((s.q - s.q_default)[:, s.hip_idx])
 
 
-def reward_dof_error(s: RewardState) -> np.ndarray:
+def reward_dof_error(s: RewardState):
     """sum (q - q_default)^2 over all leg joints."""
     return _sq_sum(s.q - s.q_default)
 
 
-def reward_feet_stumble(s: RewardState) -> np.ndarray:
+def reward_feet_stumble(s: RewardState):
     """1 if any foot's horizontal contact force exceeds 4x its vertical one (hitting a riser)."""
     horiz2 = _sq_sum(s.foot_force[..., :2])  # |F_xy| > 4 |F_z|  <=>  |F_xy|^2 > 16 F_z^2
-    return np.any(horiz2 > 16.0 * s.foot_force[..., 2] ** 2, axis=1).astype(np.float64)
+    return _float(_xp(horiz2).any(horiz2 > 16.0 * s.foot_force[..., 2] ** 2, axis=1), s)
 
 
-def reward_feet_edge(s: RewardState) -> np.ndarray:
+def reward_feet_edge(s: RewardState):
     """(terrain_level >= feet_edge_from_level) * number of feet in contact on an edge cell (the
     paper's gate is terrain_level > 3, the default ``feet_edge_from_level`` = 4)."""
-    return (s.terrain_level >= s.feet_edge_from_level) * np.sum(s.feet_at_edge, axis=1).astype(np.float64)
+    return _float(s.terrain_level >= s.feet_edge_from_level, s) * _xp(s.q).sum(_float(s.feet_at_edge, s), axis=1)
 
 
-def reward_feet_in_pit(s: RewardState) -> np.ndarray:
+def reward_feet_in_pit(s: RewardState):
     """Number of feet in contact over a pit sample (not in the paper's table; weight 0 unless set)."""
     s.require("feet_in_pit")
-    return np.sum(s.feet_in_pit, axis=1).astype(np.float64)
+    return _xp(s.q).sum(_float(s.feet_in_pit, s), axis=1)
 
 
-def reward_feet_air_time(s: RewardState) -> np.ndarray:
+def reward_feet_air_time(s: RewardState):
     """sum over feet touching down of (T_air - 0.5): rewards steps longer than 0.5 s."""
-    return np.sum((s.feet_air_time - 0.5) * s.first_contact, axis=1)
+    return _xp(s.q).sum((s.feet_air_time - 0.5) * _float(s.first_contact, s), axis=1)
 
 
-def reward_base_height(s: RewardState) -> np.ndarray:
+def reward_base_height(s: RewardState):
     """(h_base - h_target)^2, h_base above the terrain under the base."""
     return (s.base_height - s.base_height_target) ** 2
 
 
-def reward_pn_distance(s: RewardState) -> np.ndarray:
+def reward_pn_distance(s: RewardState):
     """Point-navigation distance (unified training only): 1 inside the reach radius, else -0.75 d."""
-    return np.where(s.goal_dist < s.reach_radius, 1.0, -0.75 * s.goal_dist)
+    return _xp(s.goal_dist).where(s.goal_dist < s.reach_radius, 1.0, -0.75 * s.goal_dist)
 
 
-def reward_dof_pos_limits(s: RewardState) -> np.ndarray:
+def reward_dof_pos_limits(s: RewardState):
     """sum(-min(0, q - q_low) + max(0, q - q_up)): how far joints are past their soft limits."""
-    low = -np.minimum(0.0, s.q - s.q_limits[:, 0])
-    up = np.maximum(0.0, s.q - s.q_limits[:, 1])
-    return np.sum(low + up, axis=1)
+    xp = _xp(s.q)
+    low = -xp.minimum(s.q - s.q_limits[:, 0], 0.0)
+    up = xp.maximum(s.q - s.q_limits[:, 1], 0.0)
+    return xp.sum(low + up, axis=1)
 
 
-def reward_feet_clearance(s: RewardState) -> np.ndarray:
+def reward_feet_clearance(s: RewardState):
     """sum over feet of (lift - swing_height)^2 * sqrt(|v_xy|): moving feet should be lifted."""
     s.require("foot_lift", "foot_vel_xy")
-    speed = np.sqrt(_sq_sum(s.foot_vel_xy))
-    return np.sum((s.foot_lift - s.swing_height) ** 2 * np.sqrt(speed), axis=1)
+    xp = _xp(s.foot_lift)
+    speed = xp.sqrt(_sq_sum(s.foot_vel_xy))
+    return xp.sum((s.foot_lift - s.swing_height) ** 2 * xp.sqrt(speed), axis=1)
 
 
-def reward_feet_slip(s: RewardState) -> np.ndarray:
+def reward_feet_slip(s: RewardState):
     """sum over feet in contact of |v_xy|: feet on the ground should not slide (a shuffle does)."""
     s.require("feet_contact", "foot_vel_xy")
-    return np.sum(np.sqrt(_sq_sum(s.foot_vel_xy)) * s.feet_contact, axis=1)
+    xp = _xp(s.foot_vel_xy)
+    return xp.sum(xp.sqrt(_sq_sum(s.foot_vel_xy)) * _float(s.feet_contact, s), axis=1)
 
 
-def reward_gait_contact(s: RewardState) -> np.ndarray:
+def reward_gait_contact(s: RewardState):
     """Number of feet (0-2) whose contact state matches the gait clock's stance/swing pattern."""
     s.require("feet_contact", "gait_phase")
-    return np.sum(s.feet_contact == stance_mask(s.gait_phase, s.gait_stance), axis=1).astype(np.float64)
+    return _xp(s.q).sum(_float(s.feet_contact == stance_mask(s.gait_phase, s.gait_stance), s), axis=1)
 
 
-def reward_gait_joint_ref(s: RewardState) -> np.ndarray:
+def reward_gait_joint_ref(s: RewardState):
     """exp(-2 ||q - q_ref||) - 0.2 min(||q - q_ref||, 0.5): leg joints that follow the clock's
     swing reference ``q_ref = q_default + swing_reference`` (Humanoid-Gym's joint-position term)."""
     s.require("gait_ref_q")
-    d = np.sqrt(_sq_sum(s.q - s.gait_ref_q))
-    return np.exp(-2.0 * d) - 0.2 * np.minimum(d, 0.5)
+    xp = _xp(s.q)
+    d = xp.sqrt(_sq_sum(s.q - s.gait_ref_q))
+    return xp.exp(-2.0 * d) - 0.2 * xp.minimum(d, 0.5)
 
 
-def reward_alive(s: RewardState) -> np.ndarray:
+def reward_alive(s: RewardState):
     """1 per step (not in the paper's table; weight 0 unless set)."""
-    return np.ones(s.q.shape[0])
+    return _xp(s.q).ones_like(s.q[:, 0])
 
 
-def reward_termination(s: RewardState) -> np.ndarray:
+def reward_termination(s: RewardState):
     """1 when the episode ends by a fall (not in the paper's table; weight 0 unless set)."""
-    return np.zeros(s.q.shape[0]) if s.fell is None else s.fell.astype(np.float64)
+    return _xp(s.q).zeros_like(s.q[:, 0]) if s.fell is None else _float(s.fell, s)
 
 
 REWARD_FUNCTIONS = {
@@ -345,14 +362,15 @@ def compute_rewards(
 
     Returns:
         total: (N,) sum of ``weight * term * dt``;
-        terms: name -> (N,) ``weight * term * dt``.
+        terms: name -> (N,) ``weight * term * dt``; arrays of ``s``'s kind (numpy or torch).
     """
     terms = {name: w * s.dt * REWARD_FUNCTIONS[name](s) for name, w in weights.items()}
     before = [v for k, v in terms.items() if k not in AFTER_CLIP]
     after = [v for k, v in terms.items() if k in AFTER_CLIP]
-    total = np.sum(before, axis=0) if before else np.zeros(s.q.shape[0])  # one pass over a (K, N) stack
+    xp = _xp(s.q)
+    total = xp.sum(xp.stack(before), axis=0) if before else xp.zeros_like(s.q[:, 0])  # one pass over (K, N)
     if only_positive:
-        total = np.maximum(total, 0.0)
+        total = xp.maximum(total, 0.0)
     if after:
-        total = total + np.sum(after, axis=0)
+        total = total + xp.sum(xp.stack(after), axis=0)
     return total, terms

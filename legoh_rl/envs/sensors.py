@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 import torch
 
+from legoh_rl.envs.array_api import namespace_of
 from legoh_rl.envs.height_map import HeightMap, as_grid_sampler, torch_height_fn, yaw_frame_points
 from legoh_rl.envs.native import (
     camera_native,
@@ -479,13 +480,19 @@ _QUAT_PRODUCTS_TO_R = _quat_product_map()
 _EYE9 = np.eye(3).reshape(9)
 
 
-def quat_to_rotmat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices of unit quaternions (w, x, y, z): (N, 4) -> (N, 3, 3).
+def quat_to_rotmat(q):
+    """Rotation matrices of unit quaternions (w, x, y, z): (N, 4) -> (N, 3, 3) (numpy, float64; or a
+    torch tensor of the same dtype and device).
 
     ``R = I + 2 [[-(y^2+z^2), xy - wz, xz + wy], [xy + wz, -(x^2+z^2), yz - wx], [xz - wy, yz + wx,
     -(x^2+y^2)]]``, evaluated as one product of the quaternions' outer products with a constant
     (16, 9) map (a handful of array operations for any N).
     """
+    if isinstance(q, torch.Tensor):
+        outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)
+        products = torch.as_tensor(_QUAT_PRODUCTS_TO_R, dtype=q.dtype, device=q.device)
+        eye = torch.as_tensor(_EYE9, dtype=q.dtype, device=q.device)
+        return (outer @ products + eye).reshape(-1, 3, 3)
     q = np.asarray(q, dtype=np.float64)
     outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)
     return (outer @ _QUAT_PRODUCTS_TO_R + _EYE9).reshape(-1, 3, 3)
@@ -497,17 +504,21 @@ def yaw_from_quat(q: np.ndarray) -> np.ndarray:
     return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
-def roll_pitch_from_gravity(gravity_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Torso roll and pitch from the unit gravity vector in the base frame, (N, 3) -> 2 x (N,)."""
-    roll = np.arctan2(-gravity_b[:, 1], -gravity_b[:, 2])
-    pitch = np.arcsin(np.clip(gravity_b[:, 0], -1.0, 1.0))
+def roll_pitch_from_gravity(gravity_b):
+    """Torso roll and pitch from the unit gravity vector in the base frame, (N, 3) -> 2 x (N,)
+    (numpy arrays or torch tensors)."""
+    xp = namespace_of(gravity_b)
+    roll = xp.atan2(-gravity_b[:, 1], -gravity_b[:, 2])
+    pitch = xp.asin(xp.clip(gravity_b[:, 0], -1.0, 1.0))
     return roll, pitch
 
 
-def world_to_yaw_frame(vec_xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """Rotate world xy vectors into the robot's yaw frame: (N, ..., 2), (N,) -> (N, ..., 2)."""
-    c, s = np.cos(yaw), np.sin(yaw)
+def world_to_yaw_frame(vec_xy, yaw):
+    """Rotate world xy vectors into the robot's yaw frame: (N, ..., 2), (N,) -> (N, ..., 2) (numpy
+    arrays or torch tensors)."""
+    xp = namespace_of(vec_xy)
+    c, s = xp.cos(yaw), xp.sin(yaw)
     shape = (-1,) + (1,) * (vec_xy.ndim - 2)
-    c, s = c.reshape(shape), s.reshape(shape)
+    c, s = xp.reshape(c, shape), xp.reshape(s, shape)
     x, y = vec_xy[..., 0], vec_xy[..., 1]
-    return np.stack([c * x + s * y, -s * x + c * y], axis=-1)
+    return xp.stack([c * x + s * y, -s * x + c * y], axis=-1)

@@ -106,6 +106,12 @@ class GridTrails:
         tm = self.grid.map
         return tm.edge_mask, tuple(tm.origin), tm.resolution
 
+    @property
+    def pit_grid(self) -> tuple[np.ndarray, tuple[float, float], float]:
+        """What :meth:`pit_at` reads, as :attr:`edge_grid`: the pit mask (nx, ny) bool, origin, spacing."""
+        tm = self.grid.map
+        return tm.pit, tuple(tm.origin), tm.resolution
+
 
 def trails_for(categories, variants: int, seed: int, **grid_kwargs) -> GridTrails:
     """Build the trail grid of the given categories (all levels) and wrap it for the env."""

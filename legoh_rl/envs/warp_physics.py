@@ -28,7 +28,7 @@ import mujoco
 import numpy as np
 import torch
 
-from legoh_rl.envs.physics import Worlds
+from legoh_rl.envs.physics import MAX_ABS_QVEL, Worlds
 from legoh_rl.envs.robots import BuiltModel
 
 __all__ = ["WarpWorlds", "PER_WORLD_FIELDS", "import_mujoco_warp", "warp_device"]
@@ -114,6 +114,12 @@ class WarpWorlds(Worlds):
             (where Warp has no graphs). Each sequence launches eagerly the first time (Warp loads
             its modules then) and is captured the second; a sequence whose capture fails warns
             once and launches eagerly from then on (the others keep their graphs).
+        resident: keep the state on the device (``HikingEnvConfig.resident``): a step neither
+            uploads the host ``qpos``/``qvel``/``ctrl`` nor downloads the outputs; the env reads
+            :attr:`views` and writes targets and pushes as tensors (:meth:`set_joint_targets`,
+            :meth:`set_base_xy_velocity`), divergence is found on the device, and a reset writes
+            only its worlds' rows. The host arrays are refreshed on request only
+            (:meth:`refresh_host`; :meth:`world_data` does it for its world).
 
     Arrays as :class:`~legoh_rl.envs.physics.BatchedWorlds` (float64 host copies of the float32
     simulation): writes to ``qpos``, ``qvel`` and ``ctrl`` reach the simulation at the next
@@ -138,8 +144,10 @@ class WarpWorlds(Worlds):
         njmax: int = 320,
         compile_workers: int | None = None,
         cuda_graph: bool | None = None,
+        resident: bool = False,
     ) -> None:
         self._init_common(built, num_worlds, decimation, num_threads)
+        self.resident = bool(resident)
         self.batch = None  # no C batch: the env's depth camera casts obstacle rays with its own caster
         for name, value in (("nconmax", nconmax), ("njmax", njmax)):
             if int(value) < 1:
@@ -193,12 +201,13 @@ class WarpWorlds(Worlds):
     def _upload_state(self) -> None:
         """Host ``qpos``, ``qvel``, ``ctrl`` (one float32 copy) and the rows of the per-world model
         fields that changed since their last upload -> the simulation."""
-        v, host = self._view, self._host_in.numpy()
-        for name, (a, b) in self._in_cols.slices.items():
-            host[:, a:b] = getattr(self, name).reshape(self.num_worlds, -1)
-        state = self._host_in.to(self.torch_device)
-        for name, (a, b) in self._in_cols.slices.items():
-            v[name].copy_(state[:, a:b].reshape(v[name].shape))
+        if not self.resident:  # (a resident simulation's state is written on the device)
+            v, host = self._view, self._host_in.numpy()
+            for name, (a, b) in self._in_cols.slices.items():
+                host[:, a:b] = getattr(self, name).reshape(self.num_worlds, -1)
+            state = self._host_in.to(self.torch_device)
+            for name, (a, b) in self._in_cols.slices.items():
+                v[name].copy_(state[:, a:b].reshape(v[name].shape))
         for field in self._dirty:
             self._upload_field(field)
         self._dirty.clear()
@@ -409,6 +418,45 @@ class WarpWorlds(Worlds):
         """Simulation time of each world, (N,) s."""
         return self._time
 
+    @property
+    def views(self) -> dict[str, torch.Tensor]:
+        """The simulation's live arrays as float32 torch tensors on :attr:`torch_device` (no copy):
+        ``qpos`` (N, nq), ``qvel`` (N, nv), ``ctrl`` (N, nu), ``xpos`` (N, nbody, 3), ``xquat``
+        (N, nbody, 4), ``sensordata`` (N, nsensordata), ``actuator_force`` (N, nu), ``cam_xpos``
+        (N, ncam, 3), ``cam_xmat`` (N, ncam, 3, 3), ``time`` (N,). Writes reach the simulation
+        directly (with ``resident``; otherwise the next step's upload overwrites them)."""
+        return self._view
+
+    def refresh_host(self, rows: np.ndarray | None = None) -> None:
+        """Copy the outputs of worlds ``rows`` (all if None) into the host arrays (a resident
+        simulation's are not refreshed by steps; otherwise they already are)."""
+        if self.resident:
+            self._download(None if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1))
+
+    def set_joint_targets(self, q_target) -> None:
+        """Set PD joint targets q* of every world, (N, A) rad in leg-joint order: a numpy array
+        (the host ``ctrl``, uploaded at the next step) or, resident, a tensor written on the device."""
+        if not (self.resident and isinstance(q_target, torch.Tensor)):
+            super().set_joint_targets(np.asarray(q_target))
+            return
+        expected = (self.num_worlds, self.built.actuator_ids.size)
+        if tuple(q_target.shape) != expected:
+            raise ValueError(f"joint targets must have shape {expected}, got {tuple(q_target.shape)}")
+        ctrl = self._view["ctrl"]
+        if not hasattr(self, "_act_cols"):
+            self._act_cols = torch.as_tensor(self.built.actuator_ids, device=self.torch_device)
+        ctrl[:, self._act_cols] = q_target.to(device=ctrl.device, dtype=ctrl.dtype)
+
+    def set_base_xy_velocity(self, ids: np.ndarray, velocity: np.ndarray) -> None:
+        """Set the base's world xy velocity of worlds ``ids`` (n,) to ``velocity`` (n, 2) m/s (a
+        push; resident: written on the device, only those rows)."""
+        if not self.resident:
+            super().set_base_xy_velocity(ids, velocity)
+            return
+        rows = torch.as_tensor(np.asarray(ids, dtype=np.int64), device=self.torch_device)
+        qvel = self._view["qvel"]
+        qvel[rows, 0:2] = torch.as_tensor(np.asarray(velocity), dtype=qvel.dtype).to(self.torch_device)
+
     def _reset_to_home(self, idx: np.ndarray) -> None:
         wp, mjw = self.wp, self.mjw
         mask = np.zeros(self.num_worlds, dtype=bool)
@@ -417,15 +465,23 @@ class WarpWorlds(Worlds):
             reset = torch.as_tensor(mask, device=self.torch_device)
             self._mask_view.copy_(reset)
             self._launch("reset", lambda: mjw.reset_data(self.m, self.d, reset=self._reset_mask))
-            self._view["overflow"][reset] = 0
-            self.qpos[idx] = self.home_qpos[idx]
-            self.qvel[idx] = self.home_qvel[idx]
-            self.ctrl[idx] = self.default_targets
+            v = self._view
+            v["overflow"][reset] = 0
+            if self.resident:  # only these worlds' rows, written where the simulation lives
+                rows = torch.as_tensor(idx, device=self.torch_device)
+                for name, values in (("qpos", self.home_qpos[idx]), ("qvel", self.home_qvel[idx]),
+                                     ("ctrl", np.tile(self.default_targets, (idx.size, 1)))):
+                    v[name][rows] = torch.as_tensor(values, dtype=v[name].dtype).to(self.torch_device)
+            else:
+                self.qpos[idx] = self.home_qpos[idx]
+                self.qvel[idx] = self.home_qvel[idx]
+                self.ctrl[idx] = self.default_targets
             self._upload_state()
             # positions, velocities, actuation and contact forces of the reset worlds (the others'
             # state is unchanged; only the reset rows are read back)
             self._launch("forward", lambda: mjw.forward(self.m, self.d))
-        self._download(idx)
+        if not self.resident:
+            self._download(idx)
 
     def step(self) -> np.ndarray:
         """Advance every world ``decimation`` substeps; reset and count the ones that diverged.
@@ -437,6 +493,8 @@ class WarpWorlds(Worlds):
         with self.wp.ScopedDevice(self.device):
             self._upload_state()
             self._launch("step", self._launch_control_step)
+        if self.resident:
+            return self._diverged_on_device()
         self._download()
         overflow = self._view["overflow"].cpu().numpy() != 0
         bad = overflow | self.unstable_rows()
@@ -445,6 +503,26 @@ class WarpWorlds(Worlds):
             self.diverged_total += int(idx.size)
             self.overflow_total += int(overflow.sum())
             self._reset_to_home(idx)
+        return bad
+
+    def _diverged_on_device(self) -> torch.Tensor:
+        """:meth:`step`'s divergence handling for a resident simulation: the test of
+        :meth:`unstable_rows` and the overflow flags on the device, one count read back (the
+        step's only wait for the device), the diverged worlds reset to their homes.
+
+        Returns:
+            (N,) bool tensor on :attr:`torch_device`.
+        """
+        v = self._view
+        overflow = v["overflow"] != 0
+        bad = (overflow | ~torch.isfinite(v["qpos"]).all(dim=1) | ~torch.isfinite(v["qvel"]).all(dim=1)
+               | (v["qvel"].abs().amax(dim=1) > MAX_ABS_QVEL))
+        num_bad, num_overflow = torch.stack([bad.sum(), overflow.sum()]).tolist()
+        if num_bad:
+            bad = bad.clone()  # the reset below clears the overflow flags the mask was read from
+            self.diverged_total += int(num_bad)
+            self.overflow_total += int(num_overflow)
+            self._reset_to_home(torch.nonzero(bad).flatten().cpu().numpy())
         return bad
 
     def _launch_control_step(self) -> None:
@@ -506,6 +584,7 @@ class WarpWorlds(Worlds):
     def world_data(self, world: int, data: mujoco.MjData) -> None:
         """World ``world``'s state in ``data``, with its positions computed (for a renderer)."""
         w = int(self._ids(np.array([world]))[0])
+        self.refresh_host(np.array([w]))
         data.qpos[:] = self.qpos[w]
         data.qvel[:] = self.qvel[w]
         data.ctrl[:] = self.ctrl[w]

@@ -81,6 +81,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         pit_depths=value("pit_depths", lambda v: tuple(float(d) for d in v)),
         physics=value("physics", str),
         depth=None if cfg.get("depth") is None else bool(cfg["depth"]),  # None: the mode's (on but for the oracle)
+        resident=None if cfg.get("resident") is None else bool(cfg["resident"]),  # None: on for warp on cuda
         reward_overrides={str(k): float(v) for k, v in (cfg.get("reward_overrides") or {}).items()},
         **{name: value(name, int) for name in ("variants", "seed", "feet_edge_from_level")},
         **{name: value(name, float) for name in ("episode_length_s", "cmd_speed", "gait_period", "gait_stance",

@@ -21,7 +21,7 @@ __all__ = ["RECIPE_ENV_KEYS", "env_defaults", "register_configs"]
 #: The :class:`HikingEnvConfig` fields a recipe's ``env`` section sets (see
 #: :func:`legoh_rl.training.builders.env_config`); ``domain_rand`` and ``curriculum`` are switches
 #: there (``false``: off), not the nested configs; ``depth_source`` is ``depth_camera.source``.
-RECIPE_ENV_KEYS = ("robot", "num_envs", "categories", "category_weights", "levels", "variants", "num_threads", "physics", "seed",
+RECIPE_ENV_KEYS = ("robot", "num_envs", "categories", "category_weights", "levels", "variants", "num_threads", "physics", "resident", "seed",
                    "domain_rand", "curriculum", "episode_length_s", "cmd_speed", "gait_period", "gait_stance",
                    "gait_amplitude", "gait_feedforward", "feet_edge_from_level", "pit_depths", "reward_overrides",
                    "depth", "depth_source")

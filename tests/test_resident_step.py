@@ -1,0 +1,189 @@
+"""The device-resident step (env.resident) against the host step, both on MuJoCo Warp's CPU device.
+
+The two paths step the same simulation: the resident one reads Warp's arrays as tensors and
+computes observations, rewards and metrics there; the host one copies the state to numpy. The PD
+targets are rounded to float32 from the same float64 values in both, so the physics stays
+identical and the outputs differ by float32 rounding only (the host computes in float64): within
+1e-5 (values of order 1 to 10, float32's ulp there ~1e-7 to 1e-6), with identical flags, episode ends, curriculum updates and resets,
+over episodes that end and restart with domain randomisation (pushes included) on.
+"""
+
+import numpy as np
+import pytest
+import torch
+from torchrl.envs import check_env_specs
+
+from legoh_rl.envs.config import HikingEnvConfig
+from legoh_rl.envs.device_terrain import DeviceTerrain, MaskGrid
+from legoh_rl.envs.hiking import HikingEnv
+from legoh_rl.envs.warp_physics import WarpWorlds
+from legoh_rl.training.builders import env_config
+
+N = 4
+BASE = dict(robot="h1", num_envs=N, num_threads=1, physics="warp", seed=3)
+
+
+def pair(**kw):
+    """(host, resident) Warp envs of the same config."""
+    return HikingEnv(HikingEnvConfig(**BASE, **kw)), HikingEnv(HikingEnvConfig(**BASE, resident=True, **kw))
+
+
+def spy_curriculum(env, calls):
+    update = env.curriculum.update
+
+    def record(ids, progress, expected, reached, rng):
+        calls.append((np.asarray(ids).tolist(), np.asarray(progress), np.asarray(reached).tolist()))
+        return update(ids, progress, expected, reached, rng)
+
+    env.curriculum.update = record
+
+
+def rollout_both(host, res, steps, scale, seed=0):
+    """Step both envs with the same random actions (torchrl's step_and_maybe_reset); yield the
+    two step outputs of each step."""
+    th, tr = host.reset(), res.reset()
+    g = torch.Generator().manual_seed(seed)
+    for _ in range(steps):
+        a = scale * torch.randn(N, host.A, generator=g)
+        out_h, th = host.step_and_maybe_reset(th.set("action", a))
+        out_r, tr = res.step_and_maybe_reset(tr.set("action", a))
+        yield out_h["next"], out_r["next"]
+
+
+def assert_same_outputs(nh, nr, obs_atol=1e-5):
+    for key in nh.keys(True, True):
+        a, b = nh[key], nr[key]
+        assert a.shape == b.shape and a.dtype == b.dtype, key
+        if a.dtype == torch.bool or a.dtype == torch.int64:
+            assert torch.equal(a, b), key
+        else:
+            assert torch.allclose(a, b, atol=obs_atol, rtol=1e-5, equal_nan=True), (key, (a - b).abs().max())
+
+
+def test_oracle_resident_step_equals_the_host_step_over_resets_and_pushes():
+    host, res = pair(mode="oracle")
+    assert host.resident is None and res.resident is not None and res.worlds.resident
+    calls_h, calls_r = [], []
+    spy_curriculum(host, calls_h)
+    spy_curriculum(res, calls_r)
+    ends = 0
+    for nh, nr in rollout_both(host, res, 120, scale=1.5):
+        assert_same_outputs(nh, nr)
+        ends += int(nh["done"].sum())
+    assert ends >= 4  # episodes ended (falls) and their worlds restarted
+    assert [c[0] for c in calls_h] == [c[0] for c in calls_r] and len(calls_h) >= 3
+    for (_, ph, sh), (_, pr, sr) in zip(calls_h, calls_r, strict=True):
+        assert np.allclose(ph, pr, atol=1e-5) and sh == sr
+    assert np.array_equal(host.curriculum.levels, res.curriculum.levels)
+    assert host.global_steps == res.global_steps and host.diverged_total == res.diverged_total
+    assert np.allclose(host.worlds.qpos, torch.as_tensor(res.worlds.views["qpos"]).double().numpy(), atol=1e-6)
+
+
+def test_student_resident_step_with_depth_gait_clock_and_pits_equals_the_host_step():
+    """Student mode: the depth image (host march, sent to the device), the gait clock's proprio
+    columns and terms, and the feet_in_pit term read on the device's pit mask."""
+    kw = dict(mode="student", gait_period=0.8,
+              reward_overrides={"feet_in_pit": -1.0, "gait_contact": 0.5, "gait_joint_ref": 0.5})
+    host, res = pair(**kw)
+    assert "feet_in_pit" in res.weights and res.resident.terrain.pit is not None
+    for nh, nr in rollout_both(host, res, 25, scale=0.5):
+        assert nr["depth"].shape == nh["depth"].shape
+        assert_same_outputs(nh, nr)
+
+
+def test_feed_forward_targets_of_the_resident_step_are_the_host_steps():
+    """The gait clock's feed-forward PD targets, computed in float64 on both paths, reach the
+    simulation as the same float32 values (to one float32 ulp: torch's and numpy's sine may
+    differ in the last float64 bit)."""
+    host, res = pair(mode="oracle", gait_period=0.8, gait_feedforward=0.5)
+    steps = rollout_both(host, res, 12, scale=0.3)
+    for _ in steps:
+        ctrl_h = host.worlds.ctrl.astype(np.float32)
+        ctrl_r = res.worlds.views["ctrl"].numpy()
+        assert np.abs(ctrl_h - ctrl_r).max() <= 2 * np.spacing(np.float32(np.abs(ctrl_h).max()))
+    phase = res.resident.gait_phase()
+    assert phase is not None and phase.dtype == torch.float64 and 0 < float(phase.max()) < 1
+
+
+def test_resident_env_specs():
+    env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=2, num_threads=1, physics="warp", resident=True))
+    check_env_specs(env, seed=0)
+
+
+def test_a_resident_step_copies_no_state_to_the_host(monkeypatch):
+    env = HikingEnv(HikingEnvConfig(**BASE, mode="oracle", resident=True))
+    td = env.reset()
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a resident step downloaded the simulation's outputs")
+
+    monkeypatch.setattr(WarpWorlds, "_download", refuse)
+    for _ in range(3):
+        td = env.step(td.set("action", torch.zeros(N, env.A)))["next"]
+    assert td["proprio"].device == env.device
+
+
+def test_a_diverged_world_and_a_bad_action_on_the_resident_step():
+    env = HikingEnv(HikingEnvConfig(**BASE, mode="oracle", resident=True))
+    td = env.reset()
+    home = env.worlds.home_qpos.copy()
+    env.worlds.views["qvel"][2, 0] = float("nan")  # world 2 diverges in its next step
+    action = torch.zeros(N, env.A)
+    action[1, 3] = float("nan")  # world 1 sends a bad action
+    out = env.step(td.set("action", action))["next"]
+    assert out["info", "diverged"].flatten().tolist() == [False, False, True, False]
+    assert out["truncated"].flatten().tolist() == [False, False, True, False]
+    assert out["info", "bad_action"].flatten().tolist() == [False, True, False, False]
+    assert env.diverged_total == 1 and env.bad_action_total == 1
+    qpos = env.worlds.views["qpos"].double().numpy()
+    assert np.allclose(qpos[2], home[2], atol=1e-6)  # back home
+    assert torch.isfinite(out["proprio"]).all() and env.resident.action[1].abs().max() == 0.0
+
+
+def test_read_state_of_a_resident_env_is_the_host_readers():
+    host, res = pair(mode="oracle")
+    host.reset()
+    res.reset()
+    sh, sr = host.read_state([1, 3]), res.read_state([1, 3])
+    assert set(sh) == set(sr)
+    for key, value in sh.items():
+        if value is None:
+            assert sr[key] is None
+        else:
+            assert np.allclose(value, sr[key], atol=1e-5), key
+
+
+def test_resident_settings_are_checked_and_resolved():
+    with pytest.raises(ValueError, match="resident=True .* needs physics='warp', got physics='mujoco'"):
+        HikingEnvConfig(resident=True)
+    assert HikingEnvConfig(physics="warp", device="cuda").step_on_device
+    assert HikingEnvConfig(physics="warp", device="cuda:1").step_on_device
+    assert not HikingEnvConfig(physics="warp").step_on_device  # Warp's CPU device: the host step
+    assert not HikingEnvConfig(physics="warp", device="cuda", resident=False).step_on_device
+    assert not HikingEnvConfig(device="cuda").step_on_device
+    cfg = env_config({"robot": "h1", "num_envs": 2, "physics": "warp", "resident": True}, mode="oracle")
+    assert cfg.resident is True and cfg.step_on_device
+
+
+def test_device_terrain_needs_the_grids_and_reads_them_as_the_host_does():
+    class NoGrids:
+        height_at_t = None
+
+    with pytest.raises(ValueError, match=r"reads the terrain's grids .*NoGrids lacks \['height_at_t', 'edge_grid'\]"):
+        DeviceTerrain(NoGrids(), "cpu")
+    env = HikingEnv(HikingEnvConfig(robot="h1", num_envs=1, num_threads=1, categories=("gap",), variants=1))
+    terrain = DeviceTerrain(env.trails, "cpu", pits=True)
+    rng = np.random.default_rng(0)
+    x0, x1, y0, y1 = env.trails.grid.map.extent
+    xy = np.stack([rng.uniform(x0 - 1, x1 + 1, 4000), rng.uniform(y0 - 1, y1 + 1, 4000)], axis=1)
+    t = torch.as_tensor(xy, dtype=torch.float64)
+    assert np.array_equal(terrain.edge(t).numpy(), env.trails.edge_at(xy))
+    assert np.array_equal(terrain.pit(t).numpy(), env.trails.pit_at(xy))
+    assert env.trails.pit_at(xy).any() and env.trails.edge_at(xy).any()
+    assert np.allclose(terrain.heights(t).numpy(), env.trails.height_at(xy), atol=1e-4)
+    # the nearest sample: half a cell either side of sample (1, 2) reads it
+    mask = np.zeros((4, 5), dtype=bool)
+    mask[1, 2] = True
+    grid = MaskGrid(mask, (10.0, 20.0), 0.5, "cpu")
+    pts = torch.tensor([[10.5, 21.0], [10.7, 21.2], [10.8, 21.0], [10.5, 21.3], [0.0, 0.0]])
+    assert grid(pts).tolist() == [True, True, False, False, False]
