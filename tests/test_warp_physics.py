@@ -271,13 +271,16 @@ def test_env_specs_on_warp():
 
 
 def test_oracle_recipe_trains_and_evaluate_runs_on_warp(tmp_path):
-    """``env.physics=warp`` from the command line of oracle_ppo.py and ``physics=warp`` of evaluate.py."""
+    """``env.physics=warp`` from the command line of oracle_ppo.py and unified.py, with the
+    device-resident step (``env.resident=true``, what a CUDA device runs by default), and
+    ``physics=warp`` of evaluate.py (the host step on Warp's CPU device)."""
     env = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1", "env.physics=warp",
-           "logger.backend=csv"]
+           "env.resident=true", "logger.backend=csv"]
     oracle_ppo.train(cfg_of("oracle_ppo", env + ["collector.steps_per_env=8", "collector.total_frames=32",
                                                  "ppo.num_epochs=1", f"checkpoint.dir={tmp_path / 'ck'}"]))
     state = load_checkpoint(tmp_path / "ck" / "last.pt")
     assert state["config"]["env"]["physics"] == "warp" and state["frames"] == 32
+    assert state["config"]["env"]["resident"] is True
     out = evaluate_recipe.evaluate(cfg_of("evaluate", [
         f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "physics=warp", "categories=[randommix]", "levels=[0]",
         "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}", "video=false",
