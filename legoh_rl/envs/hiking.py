@@ -320,6 +320,7 @@ class HikingEnv(EnvBase):
         if self.camera is not None:
             self._render_depth(np.isin(np.arange(N), ids))
         if self.resident is not None:
+            self.resident.send_depth(np.isin(np.arange(N), ids))
             no = torch.zeros(N, dtype=torch.bool, device=self.resident.device)
             out = self.resident.to_td(self.resident.refresh_rows(ids), self.resident.empty_episode(), info=(no, no),
                                       flags=(no, no, no))

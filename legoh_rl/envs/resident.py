@@ -118,6 +118,10 @@ class ResidentStep:
         self.ended = zeros(N, dtype=torch.bool)
         self.ended_stats = zeros(N, 3)  # progress, expected, success
         self.obs: dict[str, torch.Tensor] = {}
+        # a host-marched depth image's device copy, refreshed on the rows the camera rendered
+        self.depth = None
+        if isinstance(env.depth, np.ndarray):
+            self.depth = torch.ones(env.depth.shape, dtype=_F32, device=dev)
 
     # ------------------------------------------------------------------ resets
     def reset_rows(self, ids: np.ndarray) -> None:
@@ -281,6 +285,7 @@ class ResidentStep:
         np.equal(env.episode_step % cfg.perception_every, 0, out=env.tick)
         self.tick.copy_(self.episode_step % cfg.perception_every == 0)
         env._render_depth(env.tick)
+        self.send_depth(env.tick)
         obs = self.observations(state)
         self.obs.update(obs)
         self.dq_prev.copy_(state["dq"])
@@ -374,9 +379,19 @@ class ResidentStep:
             "perception_tick": self.tick[sel, None],
         }
         if env.depth is not None:
-            depth = env.depth if isinstance(env.depth, torch.Tensor) else torch.from_numpy(env.depth)
-            obs["depth"] = depth.to(self.device)[sel]
+            obs["depth"] = (env.depth if self.depth is None else self.depth)[sel]
         return obs
+
+    def send_depth(self, which: np.ndarray) -> None:
+        """Copy the host-marched depth rows of worlds ``which`` (N,) bool to the device (nothing
+        to do when the camera casts on the device, or has none)."""
+        if self.depth is None or not which.any():
+            return
+        ids = np.flatnonzero(which)
+        if ids.size == which.size:
+            self.depth.copy_(torch.from_numpy(self.env.depth))
+        else:
+            self.depth[torch.as_tensor(ids, device=self.device)] = torch.from_numpy(self.env.depth[ids]).to(self.device)
 
     def refresh_rows(self, ids: np.ndarray) -> dict:
         """The observations after worlds ``ids`` were reset: every world's on the first call
