@@ -184,3 +184,41 @@ def test_the_gpu_oracle_experiment_is_the_cpu_stage_on_warp_with_more_worlds():
         assert gpu[key] == cpu[key], key
     assert gpu["checkpoint"]["init"] == cpu["checkpoint"]["init"]
     assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"]  # never the CPU run's directory
+
+
+def test_the_g1_trail_oracle_is_h1s_three_run_chain_as_one_schedule():
+    """oracle_g1_trails stages H1's oracle chain (trails -> footholds -> pit_rungs) for G1: each
+    stage trains with the env, PPO and model settings of H1's run, but for the robot, G1's wider
+    swing and the feedforward gain (one anneal over the whole schedule here, a new start per run
+    there), and ends where H1's run ended (the frames of its committed last.pt)."""
+    g1 = cfg_of("oracle_ppo", ["experiment=oracle_g1_trails"])
+    stages = parse_stages(g1.stages)
+    assert [s.name for s in stages] == ["trails", "footholds", "pit_rungs"]
+    h1_runs = ("oracle_h1_trails", "oracle_h1_footholds", "oracle_h1_pit_rungs")
+    ends = 0
+    for stage, name in zip(stages, h1_runs, strict=True):
+        h1 = OmegaConf.to_container(cfg_of("oracle_ppo", [f"experiment={name}"]), resolve=True)
+        mine = OmegaConf.to_container(stage_settings(g1, stage), resolve=True)
+        ends += load_checkpoint(ROOT / "runs" / name / "last.pt")["frames"]
+        assert stage.frames == ends, stage.name
+        assert (mine["env"]["robot"], mine["env"]["gait_amplitude"]) == ("g1", 0.45)
+        differ = ("robot", "gait_amplitude", "gait_feedforward")
+        assert {k: v for k, v in mine["env"].items() if k not in differ} == {
+            k: v for k, v in h1["env"].items() if k not in differ}, stage.name
+        for key in ("ppo", "model"):
+            assert mine[key] == h1[key], (stage.name, key)
+    assert stages[1].keep_curriculum is False  # H1's second run started afresh on levels 0-4
+    assert g1.feedforward_anneal == [10_000_000, 50_000_000] and g1.checkpoint.init == "checkpoints/oracle_g1.pt"
+    # H1's later runs started at the gain this one line reaches at their start (0.922, 0.508)
+    for name, start in (("oracle_h1_footholds", stages[0].frames), ("oracle_h1_pit_rungs", stages[1].frames)):
+        gain = 1.0 - (start - 10_000_000) / 40_000_000
+        assert abs(cfg_of("oracle_ppo", [f"experiment={name}"]).env.gait_feedforward - gain) < 1e-3, name
+
+
+def test_the_g1_lego_h_row_is_the_h1_lego_h_row_for_g1():
+    g1 = OmegaConf.to_container(cfg_of("unified", ["experiment=g1_lego_h"]), resolve=True)
+    h1 = OmegaConf.to_container(cfg_of("unified", ["experiment=h1_lego_h_seed", "env.seed=0"]), resolve=True)
+    assert g1["teacher"] == "checkpoints/oracle_g1_trails.pt" and g1["env"]["robot"] == "g1"
+    assert {k: v for k, v in g1["env"].items() if k != "robot"} == {k: v for k, v in h1["env"].items() if k != "robot"}
+    for key in ("student", "hlm", "collector", "dagger_iters", "dagger_replay", "ppo", "imitation"):
+        assert g1[key] == h1[key], key
