@@ -209,7 +209,7 @@ class ResidentStep:
         if phase is None:
             return None
         offsets = swing_reference(phase, env.swing_joints, env.A, env.cfg.gait_amplitude)
-        return self.q_default.to(offsets.dtype) + offsets
+        return (self.q_default64 if offsets.dtype == torch.float64 else self.q_default) + offsets
 
     def goal_dirs(self, pos: torch.Tensor, rows: torch.Tensor | None = None) -> torch.Tensor:
         """Unit world-frame xy directions to the next ``num_goals`` expert goals, (n, k, 2)."""
