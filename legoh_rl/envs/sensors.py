@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 import torch
+from array_api_compat import device as array_device
 
 from legoh_rl.envs.array_api import namespace_of
 from legoh_rl.envs.height_map import HeightMap, as_grid_sampler, torch_height_fn, yaw_frame_points
@@ -488,14 +489,12 @@ def quat_to_rotmat(q):
     -(x^2+y^2)]]``, evaluated as one product of the quaternions' outer products with a constant
     (16, 9) map (a handful of array operations for any N).
     """
-    if isinstance(q, torch.Tensor):
-        outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)
-        products = torch.as_tensor(_QUAT_PRODUCTS_TO_R, dtype=q.dtype, device=q.device)
-        eye = torch.as_tensor(_EYE9, dtype=q.dtype, device=q.device)
-        return (outer @ products + eye).reshape(-1, 3, 3)
-    q = np.asarray(q, dtype=np.float64)
-    outer = (q[:, :, None] * q[:, None, :]).reshape(-1, 16)
-    return (outer @ _QUAT_PRODUCTS_TO_R + _EYE9).reshape(-1, 3, 3)
+    if not isinstance(q, torch.Tensor):
+        q = np.asarray(q, dtype=np.float64)
+    xp = namespace_of(q)
+    outer = xp.reshape(q[:, :, None] * q[:, None, :], (-1, 16))
+    products, eye = (xp.asarray(c, dtype=q.dtype, device=array_device(q)) for c in (_QUAT_PRODUCTS_TO_R, _EYE9))
+    return xp.reshape(outer @ products + eye, (-1, 3, 3))
 
 
 def yaw_from_quat(q: np.ndarray) -> np.ndarray:

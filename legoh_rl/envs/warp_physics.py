@@ -164,6 +164,7 @@ class WarpWorlds(Worlds):
         self._view = {name: to_torch(getattr(self.d, name)) for name in (*_OUTPUTS, "ctrl", "time", "overflow")}
         self._field_view = {f: to_torch(getattr(self.m, f)) for f in PER_WORLD_FIELDS}
         self._mask_view = to_torch(self._reset_mask)
+        self._act_cols = torch.as_tensor(built.actuator_ids, device=self.torch_device)  # ctrl columns of the targets
         one = mujoco.MjData(mjm)
         for name in (*_OUTPUTS, "ctrl"):  # host copies with the C backend's shapes
             setattr(self, name, np.zeros((N, *getattr(one, name).shape)))
@@ -443,8 +444,6 @@ class WarpWorlds(Worlds):
         if tuple(q_target.shape) != expected:
             raise ValueError(f"joint targets must have shape {expected}, got {tuple(q_target.shape)}")
         ctrl = self._view["ctrl"]
-        if not hasattr(self, "_act_cols"):
-            self._act_cols = torch.as_tensor(self.built.actuator_ids, device=self.torch_device)
         ctrl[:, self._act_cols] = q_target.to(device=ctrl.device, dtype=ctrl.dtype)
 
     def set_base_xy_velocity(self, ids: np.ndarray, velocity: np.ndarray) -> None:
@@ -519,7 +518,6 @@ class WarpWorlds(Worlds):
                | (v["qvel"].abs().amax(dim=1) > MAX_ABS_QVEL))
         num_bad, num_overflow = torch.stack([bad.sum(), overflow.sum()]).tolist()
         if num_bad:
-            bad = bad.clone()  # the reset below clears the overflow flags the mask was read from
             self.diverged_total += int(num_bad)
             self.overflow_total += int(num_overflow)
             self._reset_to_home(torch.nonzero(bad).flatten().cpu().numpy())
