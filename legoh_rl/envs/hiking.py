@@ -41,14 +41,10 @@ from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.randomization import DomainRandConfig, DomainRandomizer
 from legoh_rl.envs.render import DEFAULT_HEIGHT, DEFAULT_WIDTH, TrackingCamera, WorldRenderer
 from legoh_rl.envs.resident import ResidentStep
-from legoh_rl.envs.rewards import RewardState, compute_rewards, reward_weights
+from legoh_rl.envs.rewards import reward_weights
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
-from legoh_rl.envs.sensors import (
-    DepthCamera,
-    scandot_offsets,
-    scandots,
-    world_to_yaw_frame,
-)
+from legoh_rl.envs.sensors import DepthCamera, scandot_offsets, scandots
+from legoh_rl.envs.step_quantities import StepQuantities
 from legoh_rl.envs.threads import torch_threads
 from legoh_rl.envs.warp_depth import WarpDepthCamera
 from legoh_rl.envs.warp_physics import WarpWorlds
@@ -103,7 +99,7 @@ class TrailSource(Protocol):
     def edge_at(self, xy: np.ndarray) -> np.ndarray: ...
 
 
-class HikingEnv(EnvBase):
+class HikingEnv(EnvBase, StepQuantities):
     """Batched humanoid hiking on procedurally generated trails (MuJoCo, TorchRL).
 
     Args:
@@ -203,6 +199,10 @@ class HikingEnv(EnvBase):
         self.goals = np.zeros((N, G, 3))  # expert goals followed by P_B
         self.num_goals = np.ones(N, dtype=np.int64)
         self.goal_idx = np.zeros(N, dtype=np.int64)
+        self.goal_offsets = np.arange(self.cfg.num_goals)
+        self.world_index = np.arange(N)
+        self.tile_level, self.tile_category = self.trails.tile_level, self.trails.tile_category
+        self.hip_idx = self.built.hip_idx
         self.start = np.zeros((N, 3))
         self.end = np.zeros((N, 3))
         self.waypoint = np.zeros((N, 3))
@@ -320,31 +320,18 @@ class HikingEnv(EnvBase):
         if self.camera is not None:
             self._render_depth(np.isin(np.arange(N), ids))
         if self.resident is not None:
-            self.resident.send_depth(np.isin(np.arange(N), ids))
-            no = torch.zeros(N, dtype=torch.bool, device=self.resident.device)
-            out = self.resident.to_td(self.resident.refresh_rows(ids), self.resident.empty_episode(), info=(no, no),
-                                      flags=(no, no, no))
+            res = self.resident
+            res.send_depth(np.isin(np.arange(N), ids))
+            no = torch.zeros(N, dtype=torch.bool, device=res.device)
+            obs = res._refresh_observations(torch.as_tensor(ids, device=res.device))
+            out = res.to_td(obs, res._empty_episode(), info=(no, no), flags=(no, no, no))
             self.time_spent["reset"] += time.perf_counter() - started
             return out
-        if not self._obs or ids.size == N:
-            obs = self._full_observations()
-        else:  # only the reset worlds changed since the last step: refresh their rows
-            state = self.read_state(ids)
-            state["goal_dirs_w"] = self._goal_dirs(state["pos"], ids)
-            for key, rows in self._observations(state, ids).items():
-                self._obs[key][ids] = rows
-            obs = self._obs
+        obs = self._refresh_observations(ids)
         no = np.zeros(N, bool)
         out = self._to_td(obs, episode=self._empty_episode(), info=(no, no), flags=(no, no, no))
         self.time_spent["reset"] += time.perf_counter() - started
         return out
-
-    def _full_observations(self) -> dict:
-        """Observations of every world from the current state (kept for the next partial reset)."""
-        state = self.read_state()
-        state["goal_dirs_w"] = self._goal_dirs(state["pos"])
-        self._obs.update(self._observations(state))
-        return self._obs
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         started = time.perf_counter()
@@ -391,35 +378,13 @@ class HikingEnv(EnvBase):
         if diverged.any():
             self.diverged_total += int(diverged.sum())
 
-        state = self.read_state()
-        self._advance_goals(state)
-        state["goal_dirs_w"] = self._goal_dirs(state["pos"])
-        fell = (
-            (np.abs(state["roll"]) > self.cfg.fall_roll_pitch)
-            | (np.abs(state["pitch"]) > self.cfg.fall_roll_pitch)
-            | (state["base_height"] < self.cfg.fall_height_ratio * self.robot.base_height_target)
-        ) & ~diverged
-        reward_state = self._reward_state(state)
-        reward_state.fell = fell
-        total, terms = compute_rewards(reward_state, self.weights, self.cfg.only_positive_rewards)
-        self.metrics.record_step(state["contact"], state["foot_on_edge"])
-
-        success = (state["goal_dist"] < self.cfg.reach_radius) & ~diverged & ~fell
-        terminated = fell | success
-        truncated = ((self.episode_step >= self.max_steps) | diverged) & ~terminated
-        done = terminated | truncated
-        episode = self._empty_episode()
-        if done.any():
-            episode = self._finish_episodes(done, success, state)
-
+        state, total, terms, episode, flags = self._score_step(diverged)
         np.equal(self.episode_step % self.cfg.perception_every, 0, out=self.tick)
         self._render_depth(self.tick)
         obs = self._observations(state)
         self._obs.update(obs)
-        self.dq_prev[:] = state["dq"]
-        self.torques_prev[:] = state["torques"]
         out = self._to_td(obs, episode=episode, info=(diverged, bad_action), reward=total, reward_terms=terms,
-                          flags=(done, terminated, truncated))
+                          flags=flags)
         self.time_spent["step"] += time.perf_counter() - started
         return out
 
@@ -480,27 +445,10 @@ class HikingEnv(EnvBase):
             tiles = np.flatnonzero(self.trails.tile_level == level)
         return tiles
 
-    def _finish_episodes(self, done: np.ndarray, success: np.ndarray, state: dict) -> dict:
-        tr = self.trails
-        trail_len = np.linalg.norm(self.end[:, :2] - self.start[:, :2], axis=1)
-        ep_time = self.episode_step * self.dt
-        metrics = self.metrics.finish(success, ep_time, state["goal_dist"], trail_len, self.num_goals - 1)
+    def _episodes_ended(self, done: np.ndarray, progress: np.ndarray, expected: np.ndarray,
+                        success: np.ndarray) -> None:
         ids = np.flatnonzero(done)
-        progress = np.maximum(trail_len - state["goal_dist"], 0.0)
-        expected = np.minimum(self.cfg.cmd_speed * self.cfg.max_episode_s, trail_len)
-        episode = {name: np.where(done, metrics[name], 0.0) for name in METRIC_NAMES}
-        episode["time_to_reach"] = np.where(done, metrics["time_to_reach"], np.nan)
-        episode["level"] = tr.tile_level[self.tile].copy()
-        episode["category"] = tr.tile_category[self.tile].copy()
         self.curriculum.update(ids, progress[ids], expected[ids], success[ids], self.rng)
-        return episode
-
-    def _empty_episode(self) -> dict:
-        N = self.cfg.num_envs
-        ep = {name: np.full(N, np.nan) if name == "time_to_reach" else np.zeros(N) for name in METRIC_NAMES}
-        ep["level"] = self.trails.tile_level[self.tile].copy()
-        ep["category"] = self.trails.tile_category[self.tile].copy()
-        return ep
 
     # ------------------------------------------------------------------ state, rewards, obs
     def read_state(self, ids: np.ndarray | None = None) -> dict:
@@ -519,60 +467,6 @@ class HikingEnv(EnvBase):
         phase = self.gait_phase()
         state["gait_phase"] = None if phase is None else phase[slice(None) if ids is None else ids]
         return state
-
-    def _advance_goals(self, state: dict) -> None:
-        """Move each world's current expert goal on once it is within reach or passed."""
-        n = np.arange(self.cfg.num_envs)
-        last = self.num_goals - 1
-        cur = self.goals[n, self.goal_idx, :2]
-        nxt = self.goals[n, np.minimum(self.goal_idx + 1, last), :2]
-        to_cur = cur - state["pos"][:, :2]
-        reached = np.einsum("ij,ij->i", to_cur, to_cur) < self.cfg.goal_reach_radius**2
-        seg = nxt - cur
-        passed = np.einsum("ij,ij->i", -to_cur, seg) > 0.0  # beyond the goal, along the next leg
-        move = (reached | passed) & (self.goal_idx < last)
-        self.metrics.goals_passed += (reached & (self.goal_idx < last)).astype(np.int64)
-        self.goal_idx[move] += 1
-
-    def _goal_dirs(self, pos: np.ndarray, ids: np.ndarray | None = None) -> np.ndarray:
-        """Unit world-frame xy directions to the next ``num_goals`` expert goals, (N, k, 2), or
-        (n, k, 2) for worlds ``ids`` with ``pos`` (n, 3) their positions."""
-        n = (np.arange(self.cfg.num_envs) if ids is None else ids)[:, None]
-        idx = np.minimum(self.goal_idx[n] + np.arange(self.cfg.num_goals)[None], self.num_goals[n] - 1)
-        vec = self.goals[n, idx, :2] - pos[:, None, :2]
-        return vec / np.maximum(np.sqrt(np.einsum("nki,nki->nk", vec, vec))[..., None], 1e-6)
-
-    def _reward_state(self, s: dict) -> RewardState:
-        contact_filt = s["contact"] | self.last_contact
-        first_contact = (self.feet_air_time > 0.0) & contact_filt
-        self.feet_air_time[:] += self.dt
-        air_time = self.feet_air_time.copy()
-        self.feet_air_time[:] *= ~contact_filt
-        self.last_contact[:] = s["contact"]
-        foot_vel_xy = (s["feet_xy"] - self.feet_xy_prev) / self.dt
-        self.feet_xy_prev[:] = s["feet_xy"]
-        return RewardState(
-            lin_vel_w=s["lin_vel_w"], ang_vel_b=s["ang_vel_b"], gravity_b=s["gravity_b"],
-            goal_dir_w=s["goal_dirs_w"][:, 0], yaw=s["yaw"],
-            cmd_speed=np.full(self.cfg.num_envs, self.cfg.cmd_speed),
-            q=s["q"], dq=s["dq"], dq_prev=self.dq_prev, q_default=self.q_default,
-            q_limits=self.q_soft_limits, hip_idx=self.built.hip_idx,
-            torques=s["torques"], torques_prev=self.torques_prev,
-            action=self.action, action_prev=self.action_prev,
-            foot_force=s["foot_force"], penalised_force=s["pen_force"],
-            feet_air_time=air_time, first_contact=first_contact, feet_at_edge=s["foot_on_edge"],
-            terrain_level=self.trails.tile_level[self.tile], base_height=s["base_height"],
-            base_height_target=self.robot.base_height_target, goal_dist=s["goal_dist"],
-            reach_radius=self.cfg.reach_radius, dt=self.dt,
-            feet_contact=s["contact"], foot_lift=s["foot_lift"], foot_vel_xy=foot_vel_xy,
-            swing_height=self.cfg.swing_height,
-            gait_phase=s["gait_phase"], gait_stance=self.cfg.gait_stance,
-            # the swing reference only when a term reads it
-            gait_ref_q=self.gait_reference(s["gait_phase"]) if "gait_joint_ref" in self.weights else None,
-            feet_edge_from_level=self.cfg.feet_edge_from_level,
-            feet_in_pit=(self.trails.pit_at(s["feet_xy"].reshape(-1, 2)).reshape(-1, 2) & s["contact"]
-                         if "feet_in_pit" in self.weights else None),
-        )
 
     def gait_reference(self, phase: np.ndarray | None = None) -> np.ndarray | None:
         """(N, A) leg-joint targets of the gait clock's swing reference (default pose + offsets) at
@@ -632,50 +526,20 @@ class HikingEnv(EnvBase):
                 z_min=self.trails.min_height_near(pos[:, :2]) if hasattr(self.trails, "min_height_near") else None,
             )
 
-    def _observations(self, s: dict, ids: np.ndarray | None = None) -> dict:
-        """Observation arrays of all worlds from ``s`` (read_state), or of worlds ``ids`` from
-        their rows ``s = read_state(ids)``."""
-        sel = slice(None) if ids is None else ids
-        yaw = s["yaw"]
-        proprio = np.concatenate(
-            [
-                s["ang_vel_b"] * ANG_VEL_SCALE,
-                s["roll"][:, None],
-                s["pitch"][:, None],
-                s["q"] - self.q_default,
-                s["dq"] * DOF_VEL_SCALE,
-                self.action[sel],
-                s["contact"].astype(np.float64),
-                *self._gait_clock(s["gait_phase"]),
-            ],
-            axis=1,
-        )
-        # goal, waypoint and expert-goal directions rotated together: (N, 2 + k, 2)
-        vecs = world_to_yaw_frame(np.concatenate(
-            [s["goal_vec"][:, None], (self.waypoint[sel, :2] - s["pos"][:, :2])[:, None], s["goal_dirs_w"]], axis=1
-        ), yaw)
-        dirs_b = vecs[:, 2:]
-        obs = {
-            "proprio": proprio,
-            "goal_gps": vecs[:, 0],
-            "waypoint_gps": vecs[:, 1],
-            "scandots": scandots(s["pos"], yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target,
-                                 getattr(self.trails, "height_around", None)),
-            "privileged": np.concatenate([s["lin_vel_b"] * LIN_VEL_SCALE, self.randomizer.privileged()[sel]], axis=1),
-            "expert_goals": dirs_b,
-            "perception_tick": self.tick[sel, None],
-        }
-        if self.depth is not None:
-            obs["depth"] = self.depth[sel] if isinstance(self.depth, np.ndarray) else self.depth[_rows(sel, self.depth)]
-        return obs
+    def _scandots(self, pos: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+        return scandots(pos, yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target,
+                        getattr(self.trails, "height_around", None))
 
-    @staticmethod
-    def _gait_clock(phase: np.ndarray | None) -> list[np.ndarray]:
-        """The proprio's clock columns: [(N, 2) sin/cos of the gait phase], or [] without a clock."""
-        if phase is None:
-            return []
-        angle = 2.0 * np.pi * phase
-        return [np.stack([np.sin(angle), np.cos(angle)], axis=1)]
+    def _pit_under(self, feet_xy: np.ndarray) -> np.ndarray:
+        return self.trails.pit_at(feet_xy.reshape(-1, 2)).reshape(-1, 2)
+
+    def _privileged_dr(self) -> np.ndarray:
+        return self.randomizer.privileged()
+
+    def _depth_rows(self, sel: slice | np.ndarray) -> np.ndarray | torch.Tensor | None:
+        if self.depth is None:
+            return None
+        return self.depth[sel] if isinstance(self.depth, np.ndarray) else self.depth[_rows(sel, self.depth)]
 
     def _to_td(self, obs: dict, episode: dict, info: tuple, flags: tuple, reward: np.ndarray | None = None,
                reward_terms: dict | None = None) -> TensorDict:

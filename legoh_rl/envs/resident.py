@@ -6,8 +6,9 @@ physics itself (docs/gpu_physics.md). :class:`ResidentStep` computes the same qu
 tensors on the simulation's device, reading the simulation's own arrays
 (:attr:`~legoh_rl.envs.warp_physics.WarpWorlds.views`) and the terrain's grids there
 (:class:`~legoh_rl.envs.device_terrain.DeviceTerrain`). The reward terms, the gait clock and the
-episode metrics are the host step's own functions (written once against the array API,
-:mod:`legoh_rl.envs.array_api`), so the two paths share their definitions; the tests hold the two
+episode metrics are the host step's own functions, and the goals, reward inputs, episode ends and
+observations the host step's own methods (:class:`~legoh_rl.envs.step_quantities.StepQuantities`),
+all written once against the array API (:mod:`legoh_rl.envs.array_api`); the tests hold the two
 paths to each other on Warp's CPU device (tests/test_resident_step.py).
 
 What stays on the host, and crosses only where it must:
@@ -37,13 +38,12 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from legoh_rl.envs.body_state import CONTACT_FORCE_THRESHOLD
-from legoh_rl.envs.config import ANG_VEL_SCALE, DOF_VEL_SCALE, LIN_VEL_SCALE
 from legoh_rl.envs.device_terrain import DeviceTerrain
 from legoh_rl.envs.gait import swing_reference
 from legoh_rl.envs.height_map import yaw_frame_points
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
-from legoh_rl.envs.rewards import RewardState, compute_rewards
-from legoh_rl.envs.sensors import quat_to_rotmat, roll_pitch_from_gravity, world_to_yaw_frame
+from legoh_rl.envs.sensors import quat_to_rotmat, roll_pitch_from_gravity
+from legoh_rl.envs.step_quantities import StepQuantities
 
 if TYPE_CHECKING:
     from legoh_rl.envs.hiking import HikingEnv
@@ -53,7 +53,7 @@ __all__ = ["ResidentStep"]
 _F32 = torch.float32
 
 
-class ResidentStep:
+class ResidentStep(StepQuantities):
     """Per-world step state and the step of a :class:`HikingEnv` whose worlds live on a device.
 
     Args:
@@ -72,6 +72,7 @@ class ResidentStep:
     def __init__(self, env: HikingEnv) -> None:
         self.env = env
         self.worlds = env.worlds
+        self.dt, self.robot, self.weights, self.max_steps = env.dt, env.robot, env.weights, env.max_steps
         dev = self.device = env.worlds.torch_device
         N, A = env.cfg.num_envs, env.A
         built, tr = env.built, env.trails
@@ -94,6 +95,7 @@ class ResidentStep:
         self.tile_level = const(tr.tile_level, torch.int64)
         self.tile_category = const(tr.tile_category, torch.int64)
         self.goal_offsets = torch.arange(env.cfg.num_goals, device=dev)
+        self.world_index = torch.arange(N, device=dev)
         G = tr.tile_goals.shape[1] + 1
 
         def zeros(*shape, dtype=_F32) -> torch.Tensor:
@@ -117,11 +119,16 @@ class ResidentStep:
         # episodes that ended, waiting for their world's reset to reach the curriculum
         self.ended = zeros(N, dtype=torch.bool)
         self.ended_stats = zeros(N, 3)  # progress, expected, success
-        self.obs: dict[str, torch.Tensor] = {}
+        self._obs: dict[str, torch.Tensor] = {}
         # a host-marched depth image's device copy, refreshed on the rows the camera rendered
         self.depth = None
         if isinstance(env.depth, np.ndarray):
             self.depth = torch.ones(env.depth.shape, dtype=_F32, device=dev)
+
+    @property
+    def cfg(self):
+        """The env's config (read live: the env replaces it when its feedforward gain changes)."""
+        return self.env.cfg
 
     # ------------------------------------------------------------------ resets
     def reset_rows(self, ids: np.ndarray) -> None:
@@ -211,26 +218,6 @@ class ResidentStep:
         offsets = swing_reference(phase, env.swing_joints, env.A, env.cfg.gait_amplitude)
         return (self.q_default64 if offsets.dtype == torch.float64 else self.q_default) + offsets
 
-    def goal_dirs(self, pos: torch.Tensor, rows: torch.Tensor | None = None) -> torch.Tensor:
-        """Unit world-frame xy directions to the next ``num_goals`` expert goals, (n, k, 2)."""
-        n = (torch.arange(self.env.cfg.num_envs, device=self.device) if rows is None else rows)[:, None]
-        idx = torch.minimum(self.goal_idx[n] + self.goal_offsets[None], self.num_goals[n] - 1)
-        vec = self.goals[n, idx, :2] - pos[:, None, :2]
-        return vec / torch.linalg.vector_norm(vec, dim=-1, keepdim=True).clamp_min(1e-6)
-
-    def advance_goals(self, pos: torch.Tensor) -> None:
-        """Move each world's current expert goal on once it is within reach or passed."""
-        n = torch.arange(self.env.cfg.num_envs, device=self.device)
-        last = self.num_goals - 1
-        cur = self.goals[n, self.goal_idx, :2]
-        nxt = self.goals[n, torch.minimum(self.goal_idx + 1, last), :2]
-        to_cur = cur - pos[:, :2]
-        reached = (to_cur * to_cur).sum(1) < self.env.cfg.goal_reach_radius**2
-        passed = (-to_cur * (nxt - cur)).sum(1) > 0.0
-        before_last = self.goal_idx < last
-        self.metrics.goals_passed += (reached & before_last).long()
-        self.goal_idx += ((reached | passed) & before_last).long()
-
     # ------------------------------------------------------------------ the step
     def step(self, action: torch.Tensor) -> TensorDictBase:
         """One control step of every world from ``action`` (N, A) (checked by the env): the
@@ -267,120 +254,38 @@ class ResidentStep:
         if worlds.diverged_total != env.diverged_total:
             env.diverged_total = worlds.diverged_total
 
-        state = self.read_state()
-        self.advance_goals(state["pos"])
-        state["goal_dirs_w"] = self.goal_dirs(state["pos"])
-        fell = ((state["roll"].abs() > cfg.fall_roll_pitch) | (state["pitch"].abs() > cfg.fall_roll_pitch)
-                | (state["base_height"] < cfg.fall_height_ratio * env.robot.base_height_target)) & ~diverged
-        rs = self.reward_state(state)
-        rs.fell = fell
-        total, terms = compute_rewards(rs, env.weights, cfg.only_positive_rewards)
-        self.metrics.record_step(state["contact"], state["foot_on_edge"])
-        success = (state["goal_dist"] < cfg.reach_radius) & ~diverged & ~fell
-        terminated = fell | success
-        truncated = ((self.episode_step >= env.max_steps) | diverged) & ~terminated
-        done = terminated | truncated
-        episode = self.finish_episodes(done, success, state)
-
+        state, total, terms, episode, flags = self._score_step(diverged)
         np.equal(env.episode_step % cfg.perception_every, 0, out=env.tick)
         self.tick.copy_(self.episode_step % cfg.perception_every == 0)
         env._render_depth(env.tick)
         self.send_depth(env.tick)
-        obs = self.observations(state)
-        self.obs.update(obs)
-        self.dq_prev.copy_(state["dq"])
-        self.torques_prev.copy_(state["torques"])
-        return self.to_td(obs, episode, info=(diverged, bad_action), flags=(done, terminated, truncated),
-                          reward=total, reward_terms=terms)
+        obs = self._observations(state)
+        self._obs.update(obs)
+        return self.to_td(obs, episode, info=(diverged, bad_action), flags=flags, reward=total, reward_terms=terms)
 
-    def reward_state(self, s: dict) -> RewardState:
-        """The reward terms' inputs from the state ``s``; advances the feet's air-time clocks."""
-        env, cfg, dt = self.env, self.env.cfg, self.env.dt
-        contact_filt = s["contact"] | self.last_contact
-        first_contact = (self.feet_air_time > 0.0) & contact_filt
-        self.feet_air_time += dt
-        air_time = self.feet_air_time.clone()
-        self.feet_air_time *= ~contact_filt
-        self.last_contact.copy_(s["contact"])
-        foot_vel_xy = (s["feet_xy"] - self.feet_xy_prev) / dt
-        self.feet_xy_prev.copy_(s["feet_xy"])
-        pit = None
-        if self.terrain.pit is not None:
-            pit = self.terrain.pit(s["feet_xy"]) & s["contact"]
-        return RewardState(
-            lin_vel_w=s["lin_vel_w"], ang_vel_b=s["ang_vel_b"], gravity_b=s["gravity_b"],
-            goal_dir_w=s["goal_dirs_w"][:, 0], yaw=s["yaw"],
-            cmd_speed=torch.full_like(s["yaw"], cfg.cmd_speed),
-            q=s["q"], dq=s["dq"], dq_prev=self.dq_prev, q_default=self.q_default,
-            q_limits=self.q_soft_limits, hip_idx=self.hip_idx,
-            torques=s["torques"], torques_prev=self.torques_prev,
-            action=self.action, action_prev=self.action_prev,
-            foot_force=s["foot_force"], penalised_force=s["pen_force"],
-            feet_air_time=air_time, first_contact=first_contact, feet_at_edge=s["foot_on_edge"],
-            terrain_level=self.tile_level[self.tile], base_height=s["base_height"],
-            base_height_target=env.robot.base_height_target, goal_dist=s["goal_dist"],
-            reach_radius=cfg.reach_radius, dt=dt,
-            feet_contact=s["contact"], foot_lift=s["foot_lift"], foot_vel_xy=foot_vel_xy,
-            swing_height=cfg.swing_height, gait_phase=s["gait_phase"], gait_stance=cfg.gait_stance,
-            gait_ref_q=self.gait_reference(s["gait_phase"]).to(_F32) if "gait_joint_ref" in env.weights else None,
-            feet_edge_from_level=cfg.feet_edge_from_level, feet_in_pit=pit,
-        )
-
-    def finish_episodes(self, done: torch.Tensor, success: torch.Tensor, state: dict) -> dict:
-        """The episode metrics of the worlds where ``done`` (0, or NaN for ``time_to_reach``,
-        elsewhere), with each world's ``level`` and ``category``; the ended episodes' progress is
-        kept for :meth:`settle_curriculum`."""
-        cfg = self.env.cfg
-        trail_len = torch.linalg.vector_norm(self.end[:, :2] - self.start[:, :2], dim=1)
-        ep_time = self.episode_step.to(_F32) * self.env.dt
-        metrics = self.metrics.finish(success, ep_time, state["goal_dist"], trail_len, self.num_goals - 1)
-        episode = {name: torch.where(done, metrics[name], 0.0) for name in METRIC_NAMES}
-        episode["time_to_reach"] = torch.where(done, metrics["time_to_reach"], float("nan"))
-        episode["level"], episode["category"] = self.tile_level[self.tile], self.tile_category[self.tile]
-        progress = (trail_len - state["goal_dist"]).clamp_min(0.0)
-        expected = trail_len.clamp_max(cfg.cmd_speed * cfg.max_episode_s)
+    def _episodes_ended(self, done: torch.Tensor, progress: torch.Tensor, expected: torch.Tensor,
+                        success: torch.Tensor) -> None:
+        """Keep the progress of the episodes that end where ``done`` for :meth:`settle_curriculum`
+        (no copy to the host here: the curriculum learns of them when their worlds reset)."""
         stats = torch.stack([progress, expected, success.to(_F32)], dim=1)
         self.ended_stats.copy_(torch.where(done[:, None], stats, self.ended_stats))
         self.ended |= done
-        return episode
 
-    def empty_episode(self) -> dict:
-        """:meth:`finish_episodes`' output where no episode ends."""
-        N = self.env.cfg.num_envs
-        ep = {name: torch.zeros(N, device=self.device) for name in METRIC_NAMES}
-        ep["time_to_reach"] = torch.full((N,), float("nan"), device=self.device)
-        ep["level"], ep["category"] = self.tile_level[self.tile], self.tile_category[self.tile]
-        return ep
+    def _pit_under(self, feet_xy: torch.Tensor) -> torch.Tensor:
+        return self.terrain.pit(feet_xy)
 
     # ------------------------------------------------------------------ observations
-    def observations(self, s: dict, rows: torch.Tensor | None = None) -> dict:
-        """Observation tensors of every world from ``s`` (:meth:`read_state`), or of worlds
-        ``rows`` from their rows ``s = read_state(rows)``; as the host step's, in float32."""
-        env = self.env
-        sel = slice(None) if rows is None else rows
-        yaw = s["yaw"]
-        phase = s["gait_phase"]
-        clock = [] if phase is None else [torch.stack([torch.sin(2 * np.pi * phase), torch.cos(2 * np.pi * phase)],
-                                                      1).to(_F32)]
-        proprio = torch.cat([s["ang_vel_b"] * ANG_VEL_SCALE, s["roll"][:, None], s["pitch"][:, None],
-                             s["q"] - self.q_default, s["dq"] * DOF_VEL_SCALE, self.action[sel],
-                             s["contact"].to(_F32), *clock], dim=1)
-        vecs = world_to_yaw_frame(torch.cat([s["goal_vec"][:, None], (self.waypoint[sel, :2] - s["pos"][:, :2])[:, None],
-                                             s["goal_dirs_w"]], dim=1), yaw)
-        points = yaw_frame_points(s["pos"][:, :2], yaw, self.scandot_xy)
-        ground = s["pos"][:, 2:3] - env.robot.base_height_target
-        obs = {
-            "proprio": proprio,
-            "goal_gps": vecs[:, 0],
-            "waypoint_gps": vecs[:, 1],
-            "scandots": (self.terrain.heights(points) - ground).clamp(-1.0, 1.0),
-            "privileged": torch.cat([s["lin_vel_b"] * LIN_VEL_SCALE, self.privileged_dr[sel]], dim=1),
-            "expert_goals": vecs[:, 2:],
-            "perception_tick": self.tick[sel, None],
-        }
-        if env.depth is not None:
-            obs["depth"] = (env.depth if self.depth is None else self.depth)[sel]
-        return obs
+    def _scandots(self, pos: torch.Tensor, yaw: torch.Tensor) -> torch.Tensor:
+        ground = pos[:, 2:3] - self.env.robot.base_height_target
+        return (self.terrain.heights(yaw_frame_points(pos[:, :2], yaw, self.scandot_xy)) - ground).clamp(-1.0, 1.0)
+
+    def _privileged_dr(self) -> torch.Tensor:
+        return self.privileged_dr
+
+    def _depth_rows(self, sel) -> torch.Tensor | None:
+        if self.env.depth is None:
+            return None
+        return (self.env.depth if self.depth is None else self.depth)[sel]
 
     def send_depth(self, which: np.ndarray) -> None:
         """Copy the host-marched depth rows of worlds ``which`` (N,) bool to the device (nothing
@@ -392,22 +297,6 @@ class ResidentStep:
             self.depth.copy_(torch.from_numpy(self.env.depth))
         else:
             self.depth[torch.as_tensor(ids, device=self.device)] = torch.from_numpy(self.env.depth[ids]).to(self.device)
-
-    def refresh_rows(self, ids: np.ndarray) -> dict:
-        """The observations after worlds ``ids`` were reset: every world's on the first call
-        (or when all are reset), else the kept ones with those rows refreshed."""
-        N = self.env.cfg.num_envs
-        if not self.obs or ids.size == N:
-            state = self.read_state()
-            state["goal_dirs_w"] = self.goal_dirs(state["pos"])
-            self.obs.update(self.observations(state))
-            return self.obs
-        rows = torch.as_tensor(ids, device=self.device)
-        state = self.read_state(rows)
-        state["goal_dirs_w"] = self.goal_dirs(state["pos"], rows)
-        for key, value in self.observations(state, rows).items():
-            self.obs[key][rows] = value
-        return self.obs
 
     def to_td(self, obs: dict, episode: dict, info: tuple, flags: tuple, reward: torch.Tensor | None = None,
               reward_terms: dict | None = None) -> TensorDictBase:
