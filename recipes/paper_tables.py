@@ -36,6 +36,10 @@ rows are trained; ``--reuse-from DIR`` also takes up ``evaluate.py`` runs made o
 (``DIR`` an output folder of one, or a folder of them) whose ``evaluated_with.json`` matches.
 The paper's protocol (512 robots, 5 runs) is larger; the comparison is of the same metrics, not
 of the same sample.
+
+``--into FILE`` also writes each table into a markdown file that asks for it, between the markers
+``<!-- paper_tables:<table> -->`` and ``<!-- /paper_tables:<table> -->`` (:func:`fill_markers`;
+RESULTS.md holds its tables so), keeping everything else in the file as it is.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ import csv
 import functools
 import json
 import math
+import re
 import shlex
 import sys
 from collections.abc import Callable, Mapping, Sequence
@@ -766,6 +771,49 @@ def write_tables(tables: Sequence[PaperTable], results: Mapping[str, RowResult] 
     return written
 
 
+_MARKED = re.compile(r"<!-- paper_tables:([A-Za-z0-9_]+) -->\n(.*?)<!-- /paper_tables:([A-Za-z0-9_]+) -->", re.S)
+_OPENING = re.compile(r"<!-- paper_tables:([A-Za-z0-9_]+) -->")
+
+
+def fill_markers(text: str, tables: Mapping[str, str]) -> tuple[str, list[str]]:
+    """Put each table of ``tables`` ({name: markdown}) between its markers in ``text``:
+    ``<!-- paper_tables:<name> -->``, a newline, ..., ``<!-- /paper_tables:<name> -->``. The table
+    goes in without its ``###`` heading (the file has its own); markers of tables not in ``tables``
+    keep what they hold.
+
+    Returns:
+        the new text and the names filled, in the order they appear.
+
+    Raises:
+        ValueError: a marker that names no table of :data:`TABLES`, an opening marker without its
+            closing one (or closed by another table's), or a table marked twice (names it).
+    """
+    opened = _OPENING.findall(text)
+    unknown = [n for n in opened if n not in TABLES]
+    if unknown:
+        raise ValueError(f"marker <!-- paper_tables:{unknown[0]} --> names no table; valid: {list(TABLES)}")
+    _check_unique("marked tables", opened)
+    blocks = list(_MARKED.finditer(text))
+    closed = [m.group(1) for m in blocks if m.group(1) == m.group(3)]
+    if len(closed) != len(opened) or len(blocks) != len(opened):
+        missing = next(n for n in opened if n not in closed)
+        raise ValueError(f"marker <!-- paper_tables:{missing} --> has no closing <!-- /paper_tables:{missing} --> "
+                         "after it (on a line of its own)")
+    filled: list[str] = []
+
+    def body(m: re.Match) -> str:
+        name = m.group(1)
+        if name not in tables:
+            return m.group(0)
+        filled.append(name)
+        md = tables[name].strip("\n").split("\n")
+        if md and md[0].startswith("### "):
+            md = md[1:]
+        return f"<!-- paper_tables:{name} -->\n" + "\n".join(md).strip("\n") + f"\n<!-- /paper_tables:{name} -->"
+
+    return _MARKED.sub(body, text), filled
+
+
 # ---------------------------------------------------------------------------------------------
 # Command line
 
@@ -794,7 +842,25 @@ def parser() -> argparse.ArgumentParser:
                    help="evaluate every checkpoint again, even where --out holds its evaluation on this protocol")
     p.add_argument("--reuse-from", type=Path, nargs="+", default=[],
                    help="evaluate.py output folders (or folders of them) whose evaluations on this protocol to take up")
+    p.add_argument("--into", type=Path, nargs="+", default=[], metavar="FILE",
+                   help="markdown files to write the tables into, between <!-- paper_tables:<table> --> markers")
     return p
+
+
+def into_files(paths: Sequence[Path], tables: Mapping[str, str], check_only: bool = False) -> None:
+    """:func:`fill_markers` on each file of ``paths``, rewritten in place (``check_only``: read and
+    checked, not written). ValueError naming the file when it is missing or its markers are wrong."""
+    for path in paths:
+        if not path.is_file():
+            raise ValueError(f"--into {str(path)!r} is not a file")
+        try:
+            text, filled = fill_markers(path.read_text(), tables)
+        except ValueError as err:
+            raise ValueError(f"{path}: {err}") from None
+        if check_only:
+            continue
+        path.write_text(text)
+        print(f"{path}: wrote {', '.join(filled) or 'no table (no markers for these tables)'}")
 
 
 def table_names(names: Sequence[str]) -> list[str]:
@@ -822,6 +888,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 args.num_threads, args.video, args.logger)
             if not args.checkpoints.is_dir():
                 raise ValueError(f"--checkpoints {str(args.checkpoints)!r} is not a folder")
+        into_files(args.into, {}, check_only=True)  # bad files or markers fail before any evaluation
     except ValueError as err:
         p.error(str(err))
     tables = [TABLES[n] for n in names]
@@ -830,6 +897,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if settings is None:
         header += ["The paper's numbers alone (`--only-paper`), from `lego-h-paper.tex`; mean ± std over its 5 runs."]
         written = write_tables(tables, None, args.out, "\n".join(header))
+        into_files(args.into, {t.name: written[f"{t.name}.md"].read_text() for t in tables})
         print(f"wrote the paper's numbers of {len(tables)} table(s) to {args.out}")
         return 0
     header += [f"Trail seeds: {', '.join(map(str, settings.trail_seeds))}", "",
@@ -841,6 +909,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                        evaluate_fn=functools.partial(evaluate_checkpoint, reuse=not args.fresh,
                                                      reuse_from=tuple(args.reuse_from)))
     written = write_tables(tables, results, args.out, "\n".join(header))
+    into_files(args.into, {t.name: written[f"{t.name}.md"].read_text() for t in tables})
     print("\n" + written["tables.md"].read_text())
     print("written:\n" + "\n".join(f"  {p}" for p in written.values()))
     failed = [k for k, r in results.items() if r.status == "failed"]

@@ -425,3 +425,40 @@ def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
 
     failed = pt.run_rows(["h1_no_hlm"], tmp_path, pt.Settings((1,)), tmp_path / "out2", evaluate_fn=one_fails)
     assert failed["h1_no_hlm"].status == "failed" and "h1_no_hlm_seed2.pt: RuntimeError: diverged" in failed["h1_no_hlm"].note
+
+
+def test_tables_go_between_their_markers_and_nothing_else_changes():
+    text = ("# Results\n\nintro\n<!-- paper_tables:ablation -->\nold rows\n<!-- /paper_tables:ablation -->\n"
+            "between\n<!-- paper_tables:g1 -->\nkept\n<!-- /paper_tables:g1 -->\nend\n")
+    new, filled = pt.fill_markers(text, {"ablation": "### Ablation (`tab:ablation_h1`)\n\n| a |\n|---|\n| 1 |\n"})
+    assert filled == ["ablation"]
+    assert new == ("# Results\n\nintro\n<!-- paper_tables:ablation -->\n| a |\n|---|\n| 1 |\n"
+                   "<!-- /paper_tables:ablation -->\nbetween\n<!-- paper_tables:g1 -->\nkept\n"
+                   "<!-- /paper_tables:g1 -->\nend\n")
+    again, _ = pt.fill_markers(new, {"ablation": "### Ablation (`tab:ablation_h1`)\n\n| a |\n|---|\n| 1 |\n"})
+    assert again == new  # filling twice changes nothing
+
+
+@pytest.mark.parametrize("text, message", [
+    ("<!-- paper_tables:tabel1 -->\nx\n<!-- /paper_tables:tabel1 -->\n", "marker <!-- paper_tables:tabel1 --> names no table"),
+    ("<!-- paper_tables:g1 -->\nx\n", "marker <!-- paper_tables:g1 --> has no closing"),
+    ("<!-- paper_tables:g1 -->\nx\n<!-- /paper_tables:ablation -->\n", "marker <!-- paper_tables:g1 --> has no closing"),
+    ("<!-- paper_tables:g1 -->\n<!-- /paper_tables:g1 -->\n<!-- paper_tables:g1 -->\n<!-- /paper_tables:g1 -->\n",
+     "marked tables must be distinct"),
+])
+def test_bad_markers_are_refused_naming_the_marker(text, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        pt.fill_markers(text, {})
+
+
+def test_into_writes_the_tables_into_a_results_file_and_checks_it_first(tmp_path, capsys):
+    results = tmp_path / "RESULTS.md"
+    results.write_text("top\n<!-- paper_tables:hlm_vae -->\n<!-- /paper_tables:hlm_vae -->\nbottom\n")
+    assert pt.main(["--only-paper", "--tables", "hlm_vae", "--out", str(tmp_path / "t"), "--into", str(results)]) == 0
+    text = results.read_text()
+    assert text.startswith("top\n<!-- paper_tables:hlm_vae -->\n") and text.endswith("<!-- /paper_tables:hlm_vae -->\nbottom\n")
+    assert "| Vanilla VAE | paper | 53.49 ± 1.61 |" in text and "###" not in text
+    results.write_text("<!-- paper_tables:hlm_vae -->\n")  # refused before anything is evaluated
+    with pytest.raises(SystemExit):
+        pt.main(["--trail-seeds", "1", "--out", str(tmp_path / "t"), "--into", str(results)])
+    assert f"{results}: marker <!-- paper_tables:hlm_vae --> has no closing" in capsys.readouterr().err
