@@ -1,23 +1,25 @@
 """Env steps/s with ``env.physics=warp`` (MuJoCo Warp on a device) beside ``env.physics=mujoco``.
 
     python benchmarks/gpu_physics.py --device cuda --n 1024 4096 8192 [--modes oracle student]
-        [--seconds 10] [--warmup 20] [--threads 16]
+        [--seconds 10] [--warmup 20] [--threads 16] [--warp-rays]
     python benchmarks/gpu_physics.py --device cpu --n 4 --seconds 3     # Warp's CPU device: a check
 
 For each mode and N, in one run: the full HikingEnv's steps/s on each backend (``env_rate`` of
 ``env_throughput.py``: random actions N(0, 0.5), so worlds fall and reset as in early training),
-the Warp backend's physics-only steps/s (``WarpWorlds.step`` alone, the same worlds), launching
-each kernel eagerly and replaying the step's captured CUDA graph (``cuda_graph``, the default on
-a GPU), the share of the Warp env's time inside ``WarpWorlds.step`` ("in physics": the rest is
-the env's host work), the share spent in its host transfers (the upload of state and targets,
-the download of outputs), and the largest qpos difference between the graph's and the eager
-step from one state ("graph diff"). In the "warp" column a student's depth is cast by Warp on the
-device (``depth_camera.source=warp``); the "warp+host depth" column is the same env with the host
-march instead (``source=host``, what ``auto`` picks), the comparison that decides which depth path
-is faster. The Warp columns run the env's device-resident step (``env.resident``, on by default on
-a CUDA device); the "warp host step" column is the same env with ``resident=False`` (the state
-copied to the host and back every step), the comparison that measures what the resident step
-gains. The C backend and the host march run on ``--threads`` CPU threads.
+the share of the Warp env's time inside ``WarpWorlds.step`` ("in physics": the rest is the env's
+host work) and, measured on the host-step env (whose host arrays follow the simulation), the
+Warp backend's physics-only steps/s (``WarpWorlds.step`` alone, the same worlds) launching each
+kernel eagerly and replaying the step's captured CUDA graph (``cuda_graph``, the default on a
+GPU), the share of that env's time spent in host transfers (the upload of state and targets, the
+download of outputs), and the largest qpos difference between the graph's and the eager step
+from one state ("graph diff"). The "warp" column runs the env's device-resident step
+(``env.resident``, on by default on a CUDA device) with the depth source a student gets by default
+(``depth_camera.source=auto``: the host march on Warp's state); the "warp host step" column is the
+same env with ``resident=False`` (the state copied to the host and back every step), the comparison
+that measures what the resident step gains. ``--warp-rays`` adds, for the student, a column with
+the depth cast by Warp's rays on the device (``source=warp``), the comparison that decided ``auto``
+(the rays were ~10x slower on an H100). The C backend and the host march run on ``--threads`` CPU
+threads.
 """
 
 from __future__ import annotations
@@ -78,6 +80,9 @@ def transfer_share(env: HikingEnv, seconds: float) -> float:
 def graph_parity(worlds: WarpWorlds) -> float:
     """Largest |qpos| difference between one control step replayed from the captured CUDA graph
     and the same step launched eagerly, from the same state (nan when the worlds have no graph)."""
+    if worlds.resident:
+        raise ValueError("graph_parity reads and writes the host arrays, which a resident simulation does not "
+                         "follow: build the env with resident=False")
     graph = worlds._graphs.get("step")
     if graph is None:
         return float("nan")
@@ -117,41 +122,41 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=20)
     parser.add_argument("--threads", type=int, default=None)
     parser.add_argument("--robot", default="h1")
+    parser.add_argument("--warp-rays", action="store_true",
+                        help="also run the student with Warp's ray-cast depth (depth_camera.source=warp)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads or torch.get_num_threads())
     print(f"device={args.device} robot={args.robot} threads={torch.get_num_threads()}")
     print(f"{'mode':8} {'N':>6} {'mujoco env/s':>13} {'warp env/s':>11} {'warp host step/s':>17} "
-          f"{'warp+host depth/s':>18} "
-          f"{'physics eager/s':>16} {'physics graph/s':>16} {'warp/mujoco':>12} {'in physics':>11} "
-          f"{'transfers':>10} {'graph diff':>11}", flush=True)
+          f"{'warp rays/s':>12} {'physics eager/s':>16} {'physics graph/s':>16} {'warp/mujoco':>12} "
+          f"{'in physics':>11} {'transfers':>10} {'graph diff':>11}", flush=True)
     for mode in args.modes:
         for n in args.n:
-            rates, shares = {}, {}
-            # the student's depth: the host march on C MuJoCo; Warp's rays on the device (the warp
-            # default) and, beside it, the host march on Warp's state (depth_camera.source=host)
-            # runs: (physics, depth source, resident: None = the default for the device)
-            runs = [("mujoco", "host", None), ("warp", "warp", None), ("warp", "warp", False)]
-            runs += [("warp", "host", None)] if mode == "student" else []
-            for physics, source, resident in runs:
+            rates = {}
+            # runs: (column, physics, depth source, resident: None = the default for the device)
+            runs = [("mujoco", "mujoco", "auto", None), ("warp", "warp", "auto", None),
+                    ("host step", "warp", "auto", False)]
+            runs += [("rays", "warp", "warp", None)] if mode == "student" and args.warp_rays else []
+            for column, physics, source, resident in runs:
                 env = HikingEnv(HikingEnvConfig(robot=args.robot, num_envs=n, mode=mode, physics=physics,
                                                 num_threads=args.threads, resident=resident,
                                                 depth_camera=DepthCameraConfig(source=source),
                                                 device=args.device if physics == "warp" else "cpu"))
-                if resident is False:
-                    rates["host step"], _ = env_rate(env, args.seconds, warmup=args.warmup)
-                    del env
-                    continue
-                rates[physics, source], shares[physics, source] = env_rate(env, args.seconds, warmup=args.warmup)
-                if (physics, source) == ("warp", "warp"):
+                rates[column], physics_share = env_rate(env, args.seconds, warmup=args.warmup)
+                if column == "warp":
+                    in_physics = physics_share
+                elif column == "host step":
+                    # the host-step env: its host arrays follow the simulation every step (a
+                    # resident env's do not), which the transfer timing, the graph-vs-eager
+                    # comparison and the physics-only loop (host targets, host fall test) read
                     share = transfer_share(env, min(args.seconds, 3.0))
                     diff = graph_parity(env.worlds)
                     eager, graph = warp_rates(env.worlds, args.seconds)
                 del env
-            host_depth = f"{rates['warp', 'host']:18.0f}" if ("warp", "host") in rates else f"{'-':>18}"
-            print(f"{mode:8} {n:6d} {rates['mujoco', 'host']:13.0f} {rates['warp', 'warp']:11.0f} "
-                  f"{rates['host step']:17.0f} {host_depth} "
-                  f"{eager:16.0f} {graph:16.0f} {rates['warp', 'warp'] / rates['mujoco', 'host']:12.2f} "
-                  f"{shares['warp', 'warp']:11.2f} {share:10.2f} {diff:11.2e}", flush=True)
+            rays = f"{rates['rays']:12.0f}" if "rays" in rates else f"{'-':>12}"
+            print(f"{mode:8} {n:6d} {rates['mujoco']:13.0f} {rates['warp']:11.0f} {rates['host step']:17.0f} "
+                  f"{rays} {eager:16.0f} {graph:16.0f} {rates['warp'] / rates['mujoco']:12.2f} "
+                  f"{in_physics:11.2f} {share:10.2f} {diff:11.2e}", flush=True)
 
 
 if __name__ == "__main__":
