@@ -1,5 +1,6 @@
 """Robot registry and model building (issue 2)."""
 
+import dataclasses
 import math
 
 import mujoco
@@ -81,3 +82,33 @@ def test_head_camera_looks_forward_and_down(built):
 def test_bad_timestep_refused():
     with pytest.raises(ValueError, match="timestep"):
         build_model("h1", timestep=0.0)
+
+
+def test_g1_foot_spheres_are_grown_with_the_sole_kept():
+    """Menagerie's G1 soles are 5 mm spheres at z = -0.03 in the foot frame; grown to 20 mm, their
+    centres go up by 15 mm (z = -0.015), so their lowest point stays at -0.035."""
+    source = mujoco.MjModel.from_xml_path(str(resolve_model_dir(ROBOTS["g1"]) / "g1.xml"))
+    g1 = build_model("g1")
+    m = g1.model
+    for foot in g1.robot.foot_bodies:
+        before = [g for g in range(source.ngeom) if source.geom_bodyid[g] == source.body(foot).id
+                  and source.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE and source.geom_contype[g]]
+        after = [g for g in range(m.ngeom) if m.geom_bodyid[g] == m.body(foot).id
+                 and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE]
+        assert len(before) == len(after) == 4
+        assert np.allclose(source.geom_size[before, 0], 0.005)
+        assert np.allclose(m.geom_size[after, 0], 0.02)
+        assert np.allclose(m.geom_pos[after, :2], source.geom_pos[before, :2])  # same footprint
+        assert np.allclose(m.geom_pos[after, 2], -0.015)
+        assert np.allclose(m.geom_pos[after, 2] - m.geom_size[after, 0],
+                           source.geom_pos[before, 2] - source.geom_size[before, 0])  # the sole stays
+    assert ROBOTS["h1"].foot_sphere_radius is None  # H1's capsule feet are left as they are
+
+
+def test_foot_sphere_radius_is_checked():
+    with pytest.raises(ValueError, match=r"foot_sphere_radius must be a positive length in m or None, got -0.01"):
+        dataclasses.replace(ROBOTS["g1"], foot_sphere_radius=-0.01)
+    with pytest.raises(ValueError, match=r"foot_sphere_radius 0.001 m is below foot body 'left_ankle_roll_link'"):
+        build_model(dataclasses.replace(ROBOTS["g1"], foot_sphere_radius=0.001))
+    with pytest.raises(ValueError, match=r"foot body 'left_ankle_link' has no colliding sphere"):
+        build_model(dataclasses.replace(ROBOTS["h1"], foot_sphere_radius=0.02))

@@ -84,6 +84,14 @@ class RobotSpec:
             on it, m (measured in simulation; the zero of the clearance reward's foot lift).
         action_scale: q* = q_default + action_scale * action.
         reward_weights: weights of the paper's reward table that differ for this robot.
+        foot_sphere_radius: radius given to the sphere colliders of the foot bodies, m, their
+            centres raised by the growth so the sole plane (and ``foot_rest_height``) stays where
+            the model put it; ``None`` keeps the model's spheres. G1's Menagerie soles are four
+            5 mm spheres, which sink up to 16 mm into the heightfield when a foot lands: with its
+            centre under the surface, C MuJoCo resolves a sphere against the heightfield's prism
+            walls (sideways normals, the foot caught) and MuJoCo Warp against its top (upward),
+            so the same gait stands on one backend and falls on the other
+            (docs/history/g1-foot-contacts.md).
     """
 
     name: str
@@ -108,8 +116,14 @@ class RobotSpec:
     foot_rest_height: float
     action_scale: float = 0.25
     reward_weights: dict[str, float] = field(default_factory=dict)
+    foot_sphere_radius: float | None = None
 
     def __post_init__(self) -> None:
+        if self.foot_sphere_radius is not None and not (
+            math.isfinite(self.foot_sphere_radius) and self.foot_sphere_radius > 0.0
+        ):
+            raise ValueError(f"RobotSpec {self.name!r}: foot_sphere_radius must be a positive length in m or None, "
+                             f"got {self.foot_sphere_radius!r}")
         n = len(self.leg_joints)
         for attr in ("default_joint_pos", "kp", "kd", "torque_limits"):
             if len(getattr(self, attr)) != n:
@@ -198,6 +212,7 @@ _G1 = RobotSpec(
     spawn_height=0.80,
     foot_rest_height=0.035,
     reward_weights={"feet_air_time": 0.5, "base_height": -35.0, "dof_pos_limits": -5.0},
+    foot_sphere_radius=0.02,
 )
 
 ROBOTS: dict[str, RobotSpec] = {"h1": _H1, "g1": _G1}
@@ -406,6 +421,9 @@ def build_model(
         if geom.group < ROBOT_GEOM_GROUPS[0]:
             geom.group = ROBOT_GEOM_GROUPS[1] if collides else ROBOT_GEOM_GROUPS[0]
 
+    if robot.foot_sphere_radius is not None:
+        _grow_foot_spheres(spec, robot.foot_bodies, robot.foot_sphere_radius)
+
     for name, kp, kd, tau in zip(robot.leg_joints, robot.kp, robot.kd, robot.torque_limits, strict=True):
         act = spec.add_actuator()
         act.name = name
@@ -441,6 +459,27 @@ def build_model(
 
     model = spec.compile()
     return _index(model, robot, robot_body_names)
+
+
+def _grow_foot_spheres(spec: mujoco.MjSpec, foot_bodies: tuple[str, str], radius: float) -> None:
+    """Give every colliding sphere of ``foot_bodies`` the ``radius`` (m), its centre raised along
+    the body's z by the growth so its lowest point, the sole, stays put.
+
+    Raises:
+        ValueError: a foot body has no colliding sphere, or one is larger than ``radius``.
+    """
+    for name in foot_bodies:
+        spheres = [g for g in spec.body(name).geoms
+                   if g.type == mujoco.mjtGeom.mjGEOM_SPHERE and (g.contype or g.conaffinity)]
+        if not spheres:
+            raise ValueError(f"foot_sphere_radius is set but foot body {name!r} has no colliding sphere")
+        for geom in spheres:
+            grow = radius - float(geom.size[0])
+            if grow < 0.0:
+                raise ValueError(f"foot_sphere_radius {radius} m is below foot body {name!r}'s sphere radius "
+                                 f"{geom.size[0]} m: the spheres are only grown")
+            geom.size = [radius, 0.0, 0.0]
+            geom.pos = [geom.pos[0], geom.pos[1], geom.pos[2] + grow]
 
 
 def _index(model: mujoco.MjModel, robot: RobotSpec, robot_body_names: set[str]) -> BuiltModel:
