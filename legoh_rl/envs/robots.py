@@ -16,6 +16,9 @@ paper's table differs per robot.
 * a forward-facing head depth camera and contact sensors (feet, penalised bodies) are added;
 * robot geoms are put in collision class ``contype=2, conaffinity=1``: they touch the terrain
   (MuJoCo's default ``1/1``) but not each other, which is cheaper and stable;
+* G1's 5 mm sole spheres are grown to 20 mm with the sole kept in place
+  (:attr:`RobotSpec.foot_sphere_radius`), so a landing foot does not sink its spheres' centres
+  below the heightfield's surface;
 * the terrain comes from a :class:`TerrainBuilder` (the trail grid), or a flat plane.
 """
 
