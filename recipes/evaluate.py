@@ -11,6 +11,7 @@ logs all of it to wandb (offline by default).
     python recipes/evaluate.py checkpoint=... trail_seeds=[0,1,2]   # three trail sets pooled
     python recipes/evaluate.py checkpoint=deploy/oracle_h1.onnx     # ONNX export, onnxruntime
     python recipes/evaluate.py checkpoint=... device=cpu            # a GPU-trained checkpoint on the CPU
+    python recipes/evaluate.py checkpoint=... domain_rand=true      # under the training's randomisation
 
 A ``.onnx`` checkpoint is an export of ``recipes/export_policy.py --format onnx``: ``OUT.onnx`` is an
 oracle's graph, or names a student's pair ``OUT.perception.onnx`` + ``OUT.locomotion.onnx``; it runs
@@ -19,6 +20,10 @@ with onnxruntime (``pip install 'legoh-rl[deploy]'``) in the same loop (docs/dep
 Beside its tables an evaluation leaves ``evaluated_with.json``: the checkpoint file's SHA-256 and
 every setting its figures depend on (:func:`evaluation_record`), so ``recipes/paper_tables.py``
 can take it up instead of evaluating the same checkpoint on the same protocol again.
+
+``domain_rand=true`` runs the benchmark under the training's domain randomisation (friction,
+base mass and CoM, motor strength, pushes every 8 s, one step of action delay): a robustness test
+beside the nominal benchmark, which is the default and what the paper's tables compare.
 
 ``trail_seeds`` repeats the protocol on trail grids generated with each seed (new trails, same
 categories, levels and variants). A deterministic policy on an unrandomised trail has a single
@@ -86,17 +91,23 @@ def trail_seeds_of(cfg: DictConfig) -> list[int]:
 
 #: ``evaluate.yaml`` keys that do not change an evaluation's figures (where it runs, what it logs)
 NOT_IN_RECORD = ("checkpoint", "output_dir", "video", "logger", "device", "num_threads")
+#: keys added to ``evaluate.yaml`` after records were first written, with the value that gives the
+#: evaluation made before the key existed: recorded only when set otherwise, so older records still
+#: describe the evaluations they were written for
+RECORDED_WHEN_SET = {"domain_rand": False}
 #: the file an evaluation leaves beside its tables: :func:`evaluation_record`
 RECORD_NAME = "evaluated_with.json"
 
 
 def evaluation_record(cfg: DictConfig) -> dict:
     """What an evaluation's figures depend on: the checkpoint's SHA-256 (its name for ``zero``)
-    and the config but for :data:`NOT_IN_RECORD`."""
+    and the config but for :data:`NOT_IN_RECORD` (and :data:`RECORDED_WHEN_SET`'s keys at their
+    old value)."""
     config = OmegaConf.to_container(cfg, resolve=True)
     path = Path(str(cfg.checkpoint))
     return {"checkpoint_sha256": file_digest(path) if path.is_file() else str(cfg.checkpoint),
-            "config": {k: v for k, v in config.items() if k not in NOT_IN_RECORD}}
+            "config": {k: v for k, v in config.items()
+                       if k not in NOT_IN_RECORD and not (k in RECORDED_WHEN_SET and v == RECORDED_WHEN_SET[k])}}
 
 
 def evaluate(cfg: DictConfig) -> dict:
@@ -108,6 +119,9 @@ def evaluate(cfg: DictConfig) -> dict:
         raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
     protocol = protocol_of(cfg)
     seeds = trail_seeds_of(cfg)
+    domain_rand = cfg.get("domain_rand", False)
+    if not isinstance(domain_rand, bool):
+        raise ValueError(f"domain_rand must be true or false, got {domain_rand!r}")
     device = resolve_device(cfg.get("device"))
     cfg = OmegaConf.merge(cfg, {"device": str(device)})  # the logged config records the device it ran on
     torch.set_num_threads(1)
@@ -121,7 +135,7 @@ def evaluate(cfg: DictConfig) -> dict:
               flush=True)
         env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
                                         seed=seed, num_threads=cfg.num_threads, device=device,
-                                        physics=cfg.get("physics", "mujoco"))
+                                        physics=cfg.get("physics", "mujoco"), domain_rand=domain_rand)
         part = run_protocol(env, policy, replace(protocol, seed=seed), progress=True)
         episodes += [{**e, "run": i * protocol.runs + e["run"], "trail_seed": seed} for e in part.episodes]
         if i == 0:
@@ -142,7 +156,7 @@ def evaluate(cfg: DictConfig) -> dict:
     video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
     print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
           f"{len(protocol.categories)} categories x {len(protocol.levels)} levels x {protocol.runs} runs "
-          f"x {len(seeds)} trail sets, seeds {seeds})\n")
+          f"x {len(seeds)} trail sets, seeds {seeds}{', with domain randomisation' if domain_rand else ''})\n")
     print(table)
     print("\nby level:\n" + level_table)
     print("\nsuccess per category and level:\n" + cells)

@@ -326,6 +326,30 @@ def test_domain_randomisation_per_world_in_paper_ranges():
     np.testing.assert_array_equal(env2.randomizer.friction, dr.friction)
 
 
+def test_eval_mode_runs_the_nominal_robot_unless_eval_domain_rand():
+    nominal = make(n=4, mode="eval", scene=BoxScene())
+    nominal.reset()
+    dr = nominal.randomizer
+    assert np.all(dr.friction == dr.nominal_friction) and not dr.mass_offset.any() and not dr.com_offset.any()
+    assert np.all(dr.motor_strength == 1.0) and dr.delay_steps(0) == 0 and not dr.cfg.push
+    rand = make(n=4, mode="eval", scene=BoxScene(), eval_domain_rand=True)
+    rand.reset()
+    dr = rand.randomizer
+    assert ((dr.friction >= 0.6) & (dr.friction <= 2.0)).all() and np.unique(dr.friction).size == 4
+    assert ((dr.motor_strength >= 0.8) & (dr.motor_strength <= 1.2)).all() and dr.mass_offset.any()
+    assert dr.cfg.push and dr.delay_steps(0) == 1  # the training's late action delay from the first step
+    # the delay acts: a step's action reaches the PD targets one step later
+    a = torch.zeros(4, rand.A)
+    a[:, 0] = 0.4
+    act(rand, a)
+    targets = lambda: rand.worlds.ctrl[:, rand.built.actuator_ids[0]]  # noqa: E731
+    np.testing.assert_allclose(targets(), rand.q_default[0])
+    act(rand, torch.zeros(4, rand.A))
+    np.testing.assert_allclose(targets(), rand.q_default[0] + rand.robot.action_scale * 0.4)
+    with pytest.raises(ValueError, match="eval_domain_rand .* needs mode='eval', got mode='oracle'"):
+        make(eval_domain_rand=True)
+
+
 def test_curriculum_moves_levels_by_progress():
     from legoh_rl.envs.curriculum import Curriculum, CurriculumConfig
 

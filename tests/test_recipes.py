@@ -1,5 +1,6 @@
 """Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs."""
 
+import json
 import math
 import re
 import sys
@@ -189,6 +190,33 @@ def test_evaluate_pools_trail_sets_as_runs(tmp_path, monkeypatch):
     assert out["rows"]["overall"]["ttf"] == pytest.approx((np.mean(ttf), np.std(ttf)))
     with pytest.raises(ValueError, match=r"trail_seeds must be a non-empty list of distinct seeds, got \[3, 3\]"):
         evaluate_recipe.evaluate(cfg_of("evaluate", base + ["trail_seeds=[3,3]", f"output_dir={tmp_path}"]))
+
+
+def test_evaluate_under_domain_randomisation_is_recorded_as_such(tmp_path, monkeypatch):
+    """domain_rand=true: the benchmark's env draws the training's randomisation, and the record
+    says so; the default leaves the key out, as the records written before it existed."""
+    envs = []
+    real = evaluate_recipe.load_policy
+
+    def spy(*args, **kwargs):
+        out = real(*args, **kwargs)
+        envs.append(out[0])
+        return out
+
+    monkeypatch.setattr(evaluate_recipe, "load_policy", spy)
+    base = ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=2", "variants=1",
+            "num_threads=1", "video=false", "logger.backend=csv"]
+    for rand in (False, True):
+        out_dir = tmp_path / str(rand)
+        evaluate_recipe.evaluate(cfg_of("evaluate", base + [f"domain_rand={str(rand).lower()}", f"output_dir={out_dir}"]))
+        record = json.loads((out_dir / evaluate_recipe.RECORD_NAME).read_text())["config"]
+        friction = envs[-1].randomizer.friction
+        if rand:
+            assert record["domain_rand"] is True and np.unique(friction).size == 2 and envs[-1].randomizer.cfg.push
+        else:
+            assert "domain_rand" not in record and np.all(friction == envs[-1].randomizer.nominal_friction)
+    with pytest.raises(ValueError, match="domain_rand must be true or false, got 'yes'"):
+        evaluate_recipe.evaluate(cfg_of("evaluate", base + ["domain_rand=yes", f"output_dir={tmp_path}"]))
 
 
 def test_exported_policy_is_slim_and_evaluates(tmp_path):

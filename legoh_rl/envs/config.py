@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DomainRandConfig
@@ -28,7 +28,8 @@ class HikingEnvConfig:
         num_envs: N, worlds stepped together (``batch_size = [N]``).
         mode: ``"oracle"`` (privileged training: no depth), ``"student"`` (unified training:
             depth and the privileged part, which the frozen teacher reads) or ``"eval"``
-            (benchmark: 0.89 m goal radius, 30 s episodes, no curriculum, no randomisation).
+            (benchmark: 0.89 m goal radius, 30 s episodes, no curriculum, no randomisation
+            unless ``eval_domain_rand``).
         categories: trail categories of the grid.
         category_weights: share of the worlds each category gets, one positive weight per entry of
             ``categories`` (None: equal shares). Worlds keep their category, so this sets how much
@@ -83,6 +84,10 @@ class HikingEnvConfig:
             to end its episode). The logged terms are left unclipped; ``termination`` is added
             after the clip.
         domain_rand, curriculum: see their modules.
+        eval_domain_rand: in ``"eval"`` mode, draw ``domain_rand``'s randomisation too (friction,
+            base mass and CoM, motor strength, pushes, and the action delay from the first step):
+            the benchmark under the training's perturbations, a robustness test. Off by default:
+            the benchmark runs the nominal robot.
         trail_tile_size: (length, width) of a trail tile, m (passed to the trail grid).
         seed: seeds the trails, spawns, randomisation and noise.
         device: torch device of the output tensors.
@@ -127,6 +132,7 @@ class HikingEnvConfig:
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+    eval_domain_rand: bool = False
     seed: int = 0
     device: str = "cpu"
 
@@ -157,6 +163,9 @@ class HikingEnvConfig:
         if self.gait_feedforward and not self.gait_period:
             raise ValueError(f"gait_feedforward={self.gait_feedforward!r} needs a gait clock: set gait_period > 0 "
                              f"(got gait_period={self.gait_period!r})")
+        if self.eval_domain_rand and not self.is_eval:
+            raise ValueError(f"eval_domain_rand randomises the evaluation: it needs mode='eval', got mode={self.mode!r} "
+                             "(training modes draw domain_rand already)")
         if self.physics not in PHYSICS:
             raise ValueError(f"unknown physics {self.physics!r}; valid: {list(PHYSICS)}")
         if self.resident and self.physics != "warp":
@@ -191,6 +200,16 @@ class HikingEnvConfig:
         if self.resident is None:
             return self.physics == "warp" and str(self.device).startswith("cuda")
         return bool(self.resident)
+
+    @property
+    def active_domain_rand(self) -> DomainRandConfig:
+        """The randomisation in force: ``domain_rand`` in training; in eval mode none, or with
+        ``eval_domain_rand`` ``domain_rand`` with its action delay on from the first step."""
+        if not self.is_eval:
+            return self.domain_rand
+        if self.eval_domain_rand:
+            return replace(self.domain_rand, delay_after_global_steps=0)
+        return DomainRandConfig.off()
 
     @property
     def is_eval(self) -> bool:

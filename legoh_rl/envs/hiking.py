@@ -38,7 +38,7 @@ from legoh_rl.envs.gait import swing_joints, swing_reference
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
-from legoh_rl.envs.randomization import DomainRandConfig, DomainRandomizer
+from legoh_rl.envs.randomization import DomainRandomizer
 from legoh_rl.envs.render import DEFAULT_HEIGHT, DEFAULT_WIDTH, TrackingCamera, WorldRenderer
 from legoh_rl.envs.resident import ResidentStep
 from legoh_rl.envs.rewards import reward_weights
@@ -149,8 +149,7 @@ class HikingEnv(EnvBase, StepQuantities):
         self.A = self.robot.num_actions
         self.max_steps = int(round(cfg.max_episode_s / self.dt))
         self.push_every = max(1, int(round(cfg.domain_rand.push_interval_s / self.dt)))
-        dr_cfg = DomainRandConfig.off() if cfg.is_eval else cfg.domain_rand
-        self.randomizer = DomainRandomizer(dr_cfg, self.worlds)
+        self.randomizer = DomainRandomizer(cfg.active_domain_rand, self.worlds)
         self.weights = reward_weights(self.robot.reward_weights, cfg.reward_overrides, student=cfg.mode != "oracle")
         if "feet_in_pit" in self.weights and getattr(trails, "pit_at", None) is None:
             raise ValueError(f"reward term feet_in_pit needs trails with pit_at(xy); {type(trails).__name__} has none")

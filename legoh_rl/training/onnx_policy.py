@@ -189,10 +189,11 @@ class OnnxModule(TensorDictModuleBase):
 
 
 def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2, seed: int = 0, num_threads=None,
-                     trails=None, threads: int = 1, physics: str = "mujoco"):
+                     trails=None, threads: int = 1, physics: str = "mujoco", domain_rand: bool = False):
     """``(env, policy, kind)`` for exported graphs, as :func:`~legoh_rl.training.policies.load_policy`
     gives for a ``.pt`` checkpoint: the same eval env (robot, gait clock and, for the student,
-    its transforms and state primers) rebuilt from the graphs' meta block.
+    its transforms and state primers) rebuilt from the graphs' meta block, randomised when
+    ``domain_rand``.
 
     Raises:
         ImportError: onnxruntime missing (says what to install). FileNotFoundError: no such
@@ -209,7 +210,7 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
         module = OnnxModule(files["oracle"], threads)
         meta = module.info["meta"]
         env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, physics=physics,
-                       **gait_kwargs(meta))
+                       domain_rand=domain_rand, **gait_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), files["oracle"])
         return env, module, "oracle (onnx)"
     perception = OnnxModule(files["perception"], threads)
@@ -218,8 +219,7 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
     if locomotion.info["meta"] != meta:
         raise DeployError(f"{files['perception']} and {files['locomotion']} come from different checkpoints")
     base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth="depth" in meta["obs_layout"],
-                    trails=trails, physics=physics,
-                    **gait_kwargs(meta))
+                    trails=trails, physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]},
                files["perception"])
     keys = hold_keys(perception)  # a frozen-oracle (RMA) student's perception also gives priv_latent_uni

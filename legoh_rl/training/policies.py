@@ -36,14 +36,17 @@ class ZeroPolicy(TensorDictModuleBase):
 
 
 def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
-             trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", **gait) -> HikingEnv:
+             trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool = False,
+             **gait) -> HikingEnv:
     """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds), its tensors on
-    ``device``, its worlds stepped by ``physics`` (``mujoco`` | ``warp``); ``gait``: ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``)
-    of a policy trained with a gait clock."""
+    ``device``, its worlds stepped by ``physics`` (``mujoco`` | ``warp``), with the training's
+    randomisation when ``domain_rand`` (``HikingEnvConfig.eval_domain_rand``); ``gait``:
+    ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``) of a policy
+    trained with a gait clock."""
     cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
                           categories=tuple(protocol.categories), levels=tuple(protocol.levels),
                           variants=variants, seed=seed, num_threads=num_threads, device=str(device), physics=physics,
-                          **gait)
+                          eval_domain_rand=domain_rand, **gait)
     return HikingEnv(cfg, trails=trails)
 
 
@@ -55,13 +58,13 @@ def oracle_networks(state: dict) -> OracleNetworks:
 
 
 def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint",
-                 device: torch.device | str = "cpu", physics: str = "mujoco"):
+                 device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool = False):
     """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol`` (on ``device``,
-    the worlds stepped by ``physics``)."""
+    the worlds stepped by ``physics``, randomised when ``domain_rand``: :func:`eval_env`)."""
     meta = state["meta"]
     blind = "depth" not in meta["obs_layout"]  # RMA-B: trained without the camera, evaluated without it
     base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=not blind, trails=trails, device=device,
-                    physics=physics, **gait_kwargs(meta))
+                    physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
     student = make_student(base, meta["perception"], meta["preset"], oracle_config=meta.get("oracle_config"))
     student.perception.load_state_dict(state["perception"])
@@ -71,10 +74,12 @@ def load_student(state: dict, protocol, variants: int, seed: int, num_threads=No
 
 
 def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2, seed: int = 0,
-                num_threads=None, trails=None, device: torch.device | str = "cpu", physics: str = "mujoco"):
+                num_threads=None, trails=None, device: torch.device | str = "cpu", physics: str = "mujoco",
+                domain_rand: bool = False):
     """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline, the
     policy and the env's tensors on ``device``, the worlds stepped by ``physics`` (``mujoco`` |
-    ``warp``, docs/gpu_physics.md).
+    ``warp``, docs/gpu_physics.md), with the training's randomisation when ``domain_rand``
+    (:func:`eval_env`).
 
     A path ending in ``.onnx`` names exported graphs, run with onnxruntime
     (:func:`~legoh_rl.training.onnx_policy.load_onnx_policy`) on the CPU, with the env on the CPU
@@ -86,23 +91,25 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
             observation layout than its eval env.
     """
     if checkpoint == "zero":
-        env = eval_env(robot, protocol, variants, seed, num_threads, trails=trails, device=device, physics=physics)
+        env = eval_env(robot, protocol, variants, seed, num_threads, trails=trails, device=device, physics=physics,
+                       domain_rand=domain_rand)
         return env, ZeroPolicy(env.A), "zero-action"
     if str(checkpoint).endswith(".onnx"):  # graphs from export_policy.py --format onnx
         from legoh_rl.training.onnx_policy import load_onnx_policy
 
-        return load_onnx_policy(checkpoint, protocol, variants, seed, num_threads, trails=trails, physics=physics)
+        return load_onnx_policy(checkpoint, protocol, variants, seed, num_threads, trails=trails, physics=physics,
+                                domain_rand=domain_rand)
     state = load_checkpoint(checkpoint)
     meta = state.get("meta", {})
     kind = meta.get("kind")
     if kind == "oracle":
         env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, device=device,
-                       physics=physics, **gait_kwargs(meta))
+                       physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), checkpoint)
         return env, make_oracle_actor(oracle_networks(state).to(device)), "oracle"
     if kind == "student":
         return load_student(state, protocol, variants, seed, num_threads, trails=trails, path=checkpoint, device=device,
-                            physics=physics)
+                            physics=physics, domain_rand=domain_rand)
     raise ValueError(f"{checkpoint}: unknown checkpoint kind {kind!r}; expected 'oracle' or 'student'")
 
 
