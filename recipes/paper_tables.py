@@ -5,6 +5,7 @@
     python recipes/paper_tables.py --trail-seeds 9101 9102 --tables ablation g1 --out outputs/tables_h1
     python recipes/paper_tables.py --trail-seeds 9101 --categories randommix --levels 0 --tables ablation
     python recipes/paper_tables.py --trail-seeds 9101 9102 9103 --protocol paper   # 20 robots per cell, 5 runs
+    python recipes/paper_tables.py --trail-seeds 9101 9102 9103 --domain-rand --out outputs/tables_dr  # robustness
     python recipes/paper_tables.py --only-paper                                    # the paper's numbers alone
 
 Every table of ``lego-h-paper.tex`` that compares methods (:data:`TABLES`: the ablation on H1, the
@@ -461,6 +462,8 @@ class Settings:
         protocol: ``"cpu"`` or ``"paper"``.
         device, num_threads: where the policy runs, physics threads (None: the default).
         video: render ``evaluate.py``'s video of each checkpoint; logger: ``"csv"`` or ``"wandb"``.
+        domain_rand: evaluate under the training's randomisation (``evaluate.py domain_rand=true``)
+            instead of on the nominal robot.
     """
 
     trail_seeds: tuple[int, ...]
@@ -474,6 +477,7 @@ class Settings:
     num_threads: int | None = None
     video: bool = False
     logger: str = "csv"
+    domain_rand: bool = False
 
     def __post_init__(self) -> None:
         """Refuse a bad protocol before any evaluation, with ``evaluate.py``'s own checks (its
@@ -496,6 +500,7 @@ class Settings:
                 "runs": self.runs, "variants": self.variants, "categories": list(self.categories),
                 "levels": list(self.levels), "trail_seeds": list(self.trail_seeds), "device": self.device,
                 "num_threads": self.num_threads, "output_dir": str(output_dir), "video": self.video,
+                "domain_rand": self.domain_rand,
                 "logger": {"backend": self.logger, "exp_name": f"paper_tables_{output_dir.name}"}}
 
     def describe(self) -> str:
@@ -507,7 +512,8 @@ class Settings:
         return (f"protocol {self.protocol}: {robots} robot(s) per cell on {self.variants} trail variant(s), "
                 f"categories {list(self.categories)} x levels {list(self.levels)}, {runs} run(s) on each of "
                 f"{len(self.trail_seeds)} trail grid(s) (seeds {list(self.trail_seeds)}): {episodes} episodes per "
-                "checkpoint, one 30 s episode each")
+                "checkpoint, one 30 s episode each"
+                + (", under the training's domain randomisation" if self.domain_rand else ""))
 
 
 def _check_unique(name: str, values: Sequence) -> None:
@@ -837,6 +843,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--num-threads", type=int, default=None, help="physics threads (default: evaluate.py's)")
     p.add_argument("--video", action="store_true", help="render evaluate.py's short video of each checkpoint")
     p.add_argument("--logger", default="csv", help="csv | wandb (offline unless configured): each evaluation's log")
+    p.add_argument("--domain-rand", action="store_true",
+                   help="evaluate under the training's randomisation (a robustness test; the paper's tables are nominal)")
     p.add_argument("--only-paper", action="store_true", help="write the paper's numbers alone; evaluate nothing")
     p.add_argument("--fresh", action="store_true",
                    help="evaluate every checkpoint again, even where --out holds its evaluation on this protocol")
@@ -885,7 +893,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 raise ValueError("--trail-seeds is required (several fresh seeds: mean ± std is over the trail grids)")
             settings = Settings(tuple(args.trail_seeds), args.robots_per_cell, args.runs, args.variants,
                                 tuple(args.categories), tuple(args.levels), args.protocol, args.device,
-                                args.num_threads, args.video, args.logger)
+                                args.num_threads, args.video, args.logger, args.domain_rand)
             if not args.checkpoints.is_dir():
                 raise ValueError(f"--checkpoints {str(args.checkpoints)!r} is not a folder")
         into_files(args.into, {}, check_only=True)  # bad files or markers fail before any evaluation

@@ -379,6 +379,14 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     assert pt.main(argv + fresh_out + ["--reuse-from", str(alone)]) == 0 and calls == [1, 2]
     assert pt.main(argv + ["--out", str(tmp_path / "tables3"), "--reuse-from", str(alone), "--variants", "2"]) == 0
     assert calls == [1, 2, 1]  # another protocol: evaluated, not taken up
+    # under the training's randomisation: evaluated with domain_rand, not taken up from a nominal evaluation
+    dr_cfgs = []
+    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", lambda cfg: dr_cfgs.append(cfg) or fake_evaluate(cfg))
+    dr_out = tmp_path / "tables_dr"
+    assert pt.main(argv + ["--out", str(dr_out), "--reuse-from", str(alone), str(out), "--domain-rand"]) == 0
+    assert len(dr_cfgs) == 1 and dr_cfgs[0].domain_rand is True
+    assert json.loads((dr_out / "evals" / "oracle_h1" / pt.RECORD_NAME).read_text())["config"]["domain_rand"] is True
+    assert "under the training's domain randomisation" in (dr_out / "tables.md").read_text()
 
 
 def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
