@@ -140,7 +140,7 @@ ROWS: dict[str, RowSpec] = {spec.key: spec for spec in (
     _student("h1_vanilla_vae", "tcvit", hlm=True, vanilla_vae=True),
     _student("h1_eph_hlm", "eph", hlm=True, vanilla_vae=False),
     _student("g1_lego_h", "tcvit", hlm=True, vanilla_vae=False, paths=("student_g1.pt",)),
-    RowSpec("g1_oracle", "g1", "oracle", ("oracle_g1.pt",)),
+    RowSpec("g1_oracle", "g1", "oracle", ("oracle_g1_trails.pt",)),  # the G1 student's teacher
 )}
 
 
