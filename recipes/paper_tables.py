@@ -35,6 +35,9 @@ each of ``--trail-seeds``; for one checkpoint mean ± std is over the trail grid
 read back rather than run again (``--fresh`` runs everything), so the command can be repeated as
 rows are trained; ``--reuse-from DIR`` also takes up ``evaluate.py`` runs made on their own
 (``DIR`` an output folder of one, or a folder of them) whose ``evaluated_with.json`` matches.
+``--archive DIR`` looks evaluations up in ``DIR`` too and keeps each one there, its record and
+``table.csv`` only (:func:`archive_evaluation`): ``docs/paper_tables/evals`` is committed, so a
+fresh checkout rewrites the tables of RESULTS.md without evaluating the checkpoints again.
 The paper's protocol (512 robots, 5 runs) is larger; the comparison is of the same metrics, not
 of the same sample.
 
@@ -48,6 +51,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
+import hashlib
 import json
 import math
 import re
@@ -547,8 +551,23 @@ def read_table_csv(path: Path) -> dict[str, dict[str, Value]]:
     return rows
 
 
+def archive_evaluation(found: Path, record: dict, archive: Path, name: str) -> Path:
+    """Keep an evaluation's figures and what they depend on (its :data:`RECORD_NAME` and
+    ``table.csv``, a few kB) in ``archive/<name>-<record digest>/``, a folder that can be committed
+    so a fresh checkout refills the tables without evaluating again; returns that folder. The digest
+    (12 hex digits of the record's SHA-256) keeps the same checkpoint's evaluations on other
+    protocols apart."""
+    digest = hashlib.sha256(json.dumps(record, sort_keys=True).encode()).hexdigest()[:12]
+    kept = Path(archive) / f"{name}-{digest}"
+    if kept.resolve() != Path(found).resolve():
+        kept.mkdir(parents=True, exist_ok=True)
+        (kept / "table.csv").write_bytes((Path(found) / "table.csv").read_bytes())
+        (kept / RECORD_NAME).write_text(json.dumps(record, indent=1) + "\n")  # last: only a complete copy matches
+    return kept
+
+
 def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse: bool = True,
-                        reuse_from: Sequence[Path] = ()) -> dict[str, dict[str, Value]]:
+                        reuse_from: Sequence[Path] = (), archive: Path | None = None) -> dict[str, dict[str, Value]]:
     """``recipes/evaluate.py``'s ``evaluate`` on one checkpoint, its config composed from
     ``evaluate.yaml`` with ``settings``.
 
@@ -557,7 +576,8 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse:
     checkpoint file and protocol), ``output_dir`` or one found in ``reuse_from`` (an
     ``evaluate.py`` run's output folder, or a folder of them), is read back instead of evaluated
     again, so the tables can be rewritten as rows are added without re-running the others
-    (``--fresh``: evaluate everything).
+    (``--fresh``: evaluate everything). With ``archive`` the evaluation is also looked up there and
+    kept there (:func:`archive_evaluation`).
 
     Returns:
         the aggregate: {group: {metric: (mean, std)}}, groups the categories and ``"overall"``.
@@ -567,14 +587,19 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse:
     cfg = OmegaConf.merge(cfg, settings.overrides(path, output_dir))
     record = evaluate_recipe.evaluation_record(cfg)
     stamp = output_dir / RECORD_NAME
-    found = find_evaluation(record, [output_dir, *reuse_from]) if reuse else None
+    searched = [output_dir, *([archive] if archive is not None else []), *reuse_from]
+    found = find_evaluation(record, searched) if reuse else None
     if found is not None:
         print(f"{path}: reusing the evaluation in {found} (same checkpoint and protocol)", flush=True)
-        return read_table_csv(found / "table.csv")
-    stamp.unlink(missing_ok=True)  # a stale record must not outlive the evaluation it described
-    rows = evaluate_recipe.evaluate(cfg)["rows"]
-    stamp.parent.mkdir(parents=True, exist_ok=True)
-    stamp.write_text(json.dumps(record, indent=1) + "\n")
+        rows = read_table_csv(found / "table.csv")
+    else:
+        stamp.unlink(missing_ok=True)  # a stale record must not outlive the evaluation it described
+        rows = evaluate_recipe.evaluate(cfg)["rows"]
+        stamp.parent.mkdir(parents=True, exist_ok=True)
+        stamp.write_text(json.dumps(record, indent=1) + "\n")
+        found = output_dir
+    if archive is not None:
+        archive_evaluation(found, record, archive, output_dir.name)
     return rows
 
 
@@ -850,6 +875,9 @@ def parser() -> argparse.ArgumentParser:
                    help="evaluate every checkpoint again, even where --out holds its evaluation on this protocol")
     p.add_argument("--reuse-from", type=Path, nargs="+", default=[],
                    help="evaluate.py output folders (or folders of them) whose evaluations on this protocol to take up")
+    p.add_argument("--archive", type=Path, default=None, metavar="DIR",
+                   help="also look evaluations up in DIR and keep each one there (its record and table.csv, "
+                        "a few kB: docs/paper_tables/evals is the committed one)")
     p.add_argument("--into", type=Path, nargs="+", default=[], metavar="FILE",
                    help="markdown files to write the tables into, between <!-- paper_tables:<table> --> markers")
     return p
@@ -915,7 +943,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     keys = [r.key for t in tables for r in t.rows]
     results = run_rows(keys, args.checkpoints, settings, args.out,
                        evaluate_fn=functools.partial(evaluate_checkpoint, reuse=not args.fresh,
-                                                     reuse_from=tuple(args.reuse_from)))
+                                                     reuse_from=tuple(args.reuse_from), archive=args.archive))
     written = write_tables(tables, results, args.out, "\n".join(header))
     into_files(args.into, {t.name: written[f"{t.name}.md"].read_text() for t in tables})
     print("\n" + written["tables.md"].read_text())

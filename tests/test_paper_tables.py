@@ -389,6 +389,47 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     assert "under the training's domain randomisation" in (dr_out / "tables.md").read_text()
 
 
+def test_an_archive_keeps_each_evaluation_so_a_new_checkout_refills_without_evaluating(tmp_path, monkeypatch):
+    """--archive DIR: each evaluation's record and table.csv are kept in DIR/<name>-<digest>/ and
+    taken up from there by a later run with an empty --out; another protocol or a changed
+    checkpoint file is evaluated again and kept beside."""
+    ck = tmp_path / "ck"
+    fake_checkpoint(ck / "student_h1.pt", student_meta(), hlm_config(True))
+    fake_checkpoint(ck / "oracle_g1_trails.pt", {"robot": "g1", "kind": "oracle"})
+    calls = []
+
+    def fake_evaluate(cfg):  # writes table.csv as evaluate.py does
+        calls.append(Path(cfg.checkpoint).name)
+        rows = aggregate_of(30.0 + len(calls))
+        pt.evaluate_recipe.write_csv(rows, Path(cfg.output_dir) / "table.csv")
+        return {"rows": rows}
+
+    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", fake_evaluate)
+    archive = tmp_path / "archive"
+    argv = ["--checkpoints", str(ck), "--trail-seeds", "9101", "--robots-per-cell", "1", "--variants", "1",
+            "--tables", "g1", "--archive", str(archive)]
+    assert pt.main(argv + ["--out", str(tmp_path / "a")]) == 0
+    assert calls == ["student_h1.pt", "oracle_g1_trails.pt"]
+    kept = sorted(archive.iterdir())
+    assert [re.fullmatch(r"(oracle_g1_trails|student_h1)-[0-9a-f]{12}", k.name).group(1) for k in kept] == \
+        ["oracle_g1_trails", "student_h1"]
+    for k in kept:
+        assert {f.name for f in k.iterdir()} == {"table.csv", pt.RECORD_NAME}
+        name = k.name.rsplit("-", 1)[0]
+        assert json.loads((k / pt.RECORD_NAME).read_text()) == \
+            json.loads((tmp_path / "a" / "evals" / name / pt.RECORD_NAME).read_text())
+    student = {(r["row"], r["source"]): r for r in read_csv(tmp_path / "a" / "g1.csv")}[("h1_lego_h", "ours")]
+    assert float(student["success_mean"]) == 31.0 and student["time_to_reach_mean"] == "nan"  # NaN survives
+    # a fresh --out (as in a new checkout): every figure read back from the archive, none evaluated
+    assert pt.main(argv + ["--out", str(tmp_path / "b")]) == 0 and len(calls) == 2
+    assert (tmp_path / "b" / "g1.csv").read_text() == (tmp_path / "a" / "g1.csv").read_text()
+    # another protocol, and a checkpoint changed in place: evaluated again, kept beside the others
+    assert pt.main(argv + ["--out", str(tmp_path / "c"), "--variants", "2"]) == 0 and len(calls) == 4
+    fake_checkpoint(ck / "student_h1.pt", student_meta(retrained=True), hlm_config(True))
+    assert pt.main(argv + ["--out", str(tmp_path / "d")]) == 0 and calls[4:] == ["student_h1.pt"]
+    assert len(list(archive.iterdir())) == 5
+
+
 def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
     """Every matching candidate is a training seed (globs expanded in name order); the row is the
     mean ± std over the seeds' own means; one failed seed fails the row; CSV and markdown name
