@@ -24,6 +24,8 @@ can take it up instead of evaluating the same checkpoint on the same protocol ag
 ``domain_rand=true`` runs the benchmark under the training's domain randomisation (friction,
 base mass and CoM, motor strength, pushes every 8 s, one step of action delay): a robustness test
 beside the nominal benchmark, which is the default and what the paper's tables compare.
+``domain_rand=[push]`` (any of ``friction base_mass base_com motor_strength push action_delay``)
+draws only the terms named, to tell which perturbation costs a policy most.
 
 ``trail_seeds`` repeats the protocol on trail grids generated with each seed (new trails, same
 categories, levels and variants). A deterministic policy on an unrandomised trail has a single
@@ -43,8 +45,9 @@ from pathlib import Path  # noqa: E402
 
 import hydra  # noqa: E402
 import torch  # noqa: E402
-from omegaconf import DictConfig, OmegaConf  # noqa: E402
+from omegaconf import DictConfig, ListConfig, OmegaConf  # noqa: E402
 
+from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS, DomainRandConfig  # noqa: E402
 from legoh_rl.training.checkpoint import file_digest, load_checkpoint  # noqa: E402
 from legoh_rl.training.device import resolve_device  # noqa: E402
 from legoh_rl.training.evaluation import (  # noqa: E402
@@ -110,6 +113,23 @@ def evaluation_record(cfg: DictConfig) -> dict:
                        if k not in NOT_IN_RECORD and not (k in RECORDED_WHEN_SET and v == RECORDED_WHEN_SET[k])}}
 
 
+def domain_rand_of(cfg: DictConfig) -> bool | tuple[str, ...]:
+    """``cfg.domain_rand`` checked: true, false, or a non-empty list of
+    :data:`~legoh_rl.envs.randomization.DOMAIN_RAND_TERMS` (returned as a tuple); ValueError
+    naming the bad value otherwise."""
+    value = cfg.get("domain_rand", False)
+    if isinstance(value, bool):
+        return value
+    if not isinstance(value, ListConfig | list | tuple) or not value:
+        raise ValueError(f"domain_rand must be true, false or a non-empty list of terms {list(DOMAIN_RAND_TERMS)}, "
+                         f"got {value!r}")
+    terms = tuple(str(t) for t in value)
+    DomainRandConfig().only(terms)  # names an unknown term
+    if len(set(terms)) != len(terms):
+        raise ValueError(f"domain_rand terms must be distinct, got {list(terms)}")
+    return terms
+
+
 def evaluate(cfg: DictConfig) -> dict:
     """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
     if cfg.checkpoint is None:
@@ -119,9 +139,7 @@ def evaluate(cfg: DictConfig) -> dict:
         raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
     protocol = protocol_of(cfg)
     seeds = trail_seeds_of(cfg)
-    domain_rand = cfg.get("domain_rand", False)
-    if not isinstance(domain_rand, bool):
-        raise ValueError(f"domain_rand must be true or false, got {domain_rand!r}")
+    domain_rand = domain_rand_of(cfg)
     device = resolve_device(cfg.get("device"))
     cfg = OmegaConf.merge(cfg, {"device": str(device)})  # the logged config records the device it ran on
     torch.set_num_threads(1)
@@ -154,9 +172,11 @@ def evaluate(cfg: DictConfig) -> dict:
     write_episodes(result.episodes, out_dir / "episodes.csv")
     plot = plot_trajectories(env, result, out_dir / "trajectories.png")
     video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
+    dr_note = ("" if not domain_rand else ", with domain randomisation" if domain_rand is True
+               else f", with domain randomisation of {', '.join(domain_rand)} only")
     print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
           f"{len(protocol.categories)} categories x {len(protocol.levels)} levels x {protocol.runs} runs "
-          f"x {len(seeds)} trail sets, seeds {seeds}{', with domain randomisation' if domain_rand else ''})\n")
+          f"x {len(seeds)} trail sets, seeds {seeds}{dr_note})\n")
     print(table)
     print("\nby level:\n" + level_table)
     print("\nsuccess per category and level:\n" + cells)

@@ -350,6 +350,28 @@ def test_eval_mode_runs_the_nominal_robot_unless_eval_domain_rand():
         make(eval_domain_rand=True)
 
 
+def test_eval_domain_rand_can_draw_named_terms_alone():
+    """A tuple of terms: those drawn, the others nominal (pushes alone: no friction, mass, motor
+    or delay draws; friction and delay alone: no pushes or mass)."""
+    pushes = make(n=4, mode="eval", scene=BoxScene(), eval_domain_rand=("push",))
+    pushes.reset()
+    dr = pushes.randomizer
+    assert dr.cfg.push and np.all(dr.friction == dr.nominal_friction) and not dr.mass_offset.any()
+    assert np.all(dr.motor_strength == 1.0) and dr.delay_steps(0) == 0
+    both = make(n=4, mode="eval", scene=BoxScene(), eval_domain_rand=["friction", "action_delay"])
+    both.reset()
+    dr = both.randomizer
+    assert both.cfg.eval_domain_rand == ("friction", "action_delay")
+    assert np.unique(dr.friction).size == 4 and dr.delay_steps(0) == 1  # delay from the first step
+    assert not dr.cfg.push and not dr.mass_offset.any() and not dr.com_offset.any() and np.all(dr.motor_strength == 1.0)
+    assert HikingEnvConfig(mode="eval", eval_domain_rand="push").active_domain_rand == \
+        HikingEnvConfig(mode="eval", eval_domain_rand=("push",)).active_domain_rand
+    with pytest.raises(ValueError, match=r"unknown domain randomisation term\(s\) \['wind'\]; valid: \['friction'"):
+        HikingEnvConfig(mode="eval", eval_domain_rand=("push", "wind"))
+    with pytest.raises(ValueError, match=r"non-empty tuple of terms, got \(\)"):
+        HikingEnvConfig(mode="eval", eval_domain_rand=())
+
+
 def test_curriculum_moves_levels_by_progress():
     from legoh_rl.envs.curriculum import Curriculum, CurriculumConfig
 

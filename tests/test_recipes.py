@@ -194,7 +194,8 @@ def test_evaluate_pools_trail_sets_as_runs(tmp_path, monkeypatch):
 
 def test_evaluate_under_domain_randomisation_is_recorded_as_such(tmp_path, monkeypatch):
     """domain_rand=true: the benchmark's env draws the training's randomisation, and the record
-    says so; the default leaves the key out, as the records written before it existed."""
+    says so; domain_rand=[terms] those terms alone; the default leaves the key out, as the records
+    written before it existed."""
     envs = []
     real = evaluate_recipe.load_policy
 
@@ -206,17 +207,24 @@ def test_evaluate_under_domain_randomisation_is_recorded_as_such(tmp_path, monke
     monkeypatch.setattr(evaluate_recipe, "load_policy", spy)
     base = ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=2", "variants=1",
             "num_threads=1", "video=false", "logger.backend=csv"]
-    for rand in (False, True):
-        out_dir = tmp_path / str(rand)
-        evaluate_recipe.evaluate(cfg_of("evaluate", base + [f"domain_rand={str(rand).lower()}", f"output_dir={out_dir}"]))
+    for rand in ("false", "true", "[friction]"):
+        out_dir = tmp_path / rand.strip("[]")
+        evaluate_recipe.evaluate(cfg_of("evaluate", base + [f"domain_rand={rand}", f"output_dir={out_dir}"]))
         record = json.loads((out_dir / evaluate_recipe.RECORD_NAME).read_text())["config"]
-        friction = envs[-1].randomizer.friction
-        if rand:
-            assert record["domain_rand"] is True and np.unique(friction).size == 2 and envs[-1].randomizer.cfg.push
-        else:
-            assert "domain_rand" not in record and np.all(friction == envs[-1].randomizer.nominal_friction)
-    with pytest.raises(ValueError, match="domain_rand must be true or false, got 'yes'"):
-        evaluate_recipe.evaluate(cfg_of("evaluate", base + ["domain_rand=yes", f"output_dir={tmp_path}"]))
+        randomizer = envs[-1].randomizer
+        if rand == "true":
+            assert record["domain_rand"] is True and np.unique(randomizer.friction).size == 2 and randomizer.cfg.push
+        elif rand == "false":
+            assert "domain_rand" not in record and np.all(randomizer.friction == randomizer.nominal_friction)
+        else:  # the friction draws alone
+            assert record["domain_rand"] == ["friction"] and np.unique(randomizer.friction).size == 2
+            assert not randomizer.cfg.push and not randomizer.mass_offset.any()
+    for bad, message in (("yes", "domain_rand must be true, false or a non-empty list of terms .*, got 'yes'"),
+                         ("[]", "domain_rand must be true, false or a non-empty list"),
+                         ("[push,wind]", r"unknown domain randomisation term\(s\) \['wind'\]"),
+                         ("[push,push]", r"domain_rand terms must be distinct, got \['push', 'push'\]")):
+        with pytest.raises(ValueError, match=message):
+            evaluate_recipe.evaluate(cfg_of("evaluate", base + [f"domain_rand={bad}", f"output_dir={tmp_path}"]))
 
 
 def test_exported_policy_is_slim_and_evaluates(tmp_path):

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from legoh_rl.envs.curriculum import CurriculumConfig
-from legoh_rl.envs.randomization import DomainRandConfig
+from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS, DomainRandConfig
 from legoh_rl.envs.sensors import DepthCameraConfig
 
 __all__ = ["HikingEnvConfig", "MODES", "PHYSICS", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
@@ -86,8 +86,10 @@ class HikingEnvConfig:
         domain_rand, curriculum: see their modules.
         eval_domain_rand: in ``"eval"`` mode, draw ``domain_rand``'s randomisation too (friction,
             base mass and CoM, motor strength, pushes, and the action delay from the first step):
-            the benchmark under the training's perturbations, a robustness test. Off by default:
-            the benchmark runs the nominal robot.
+            the benchmark under the training's perturbations, a robustness test. True: every
+            term; a tuple of :data:`~legoh_rl.envs.randomization.DOMAIN_RAND_TERMS`: those terms
+            alone (which perturbation costs a policy most). Off by default: the benchmark runs
+            the nominal robot.
         trail_tile_size: (length, width) of a trail tile, m (passed to the trail grid).
         seed: seeds the trails, spawns, randomisation and noise.
         device: torch device of the output tensors.
@@ -132,7 +134,7 @@ class HikingEnvConfig:
     only_positive_rewards: bool = True
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
-    eval_domain_rand: bool = False
+    eval_domain_rand: bool | tuple[str, ...] = False
     seed: int = 0
     device: str = "cpu"
 
@@ -163,6 +165,13 @@ class HikingEnvConfig:
         if self.gait_feedforward and not self.gait_period:
             raise ValueError(f"gait_feedforward={self.gait_feedforward!r} needs a gait clock: set gait_period > 0 "
                              f"(got gait_period={self.gait_period!r})")
+        if not isinstance(self.eval_domain_rand, bool):
+            terms = self.eval_domain_rand
+            self.eval_domain_rand = (terms,) if isinstance(terms, str) else tuple(terms)
+            if not self.eval_domain_rand:
+                raise ValueError("eval_domain_rand must be true, false or a non-empty tuple of terms, got () "
+                                 f"(terms: {list(DOMAIN_RAND_TERMS)})")
+            self.domain_rand.only(self.eval_domain_rand)  # names the unknown term
         if self.eval_domain_rand and not self.is_eval:
             raise ValueError(f"eval_domain_rand randomises the evaluation: it needs mode='eval', got mode={self.mode!r} "
                              "(training modes draw domain_rand already)")
@@ -204,11 +213,14 @@ class HikingEnvConfig:
     @property
     def active_domain_rand(self) -> DomainRandConfig:
         """The randomisation in force: ``domain_rand`` in training; in eval mode none, or with
-        ``eval_domain_rand`` ``domain_rand`` with its action delay on from the first step."""
+        ``eval_domain_rand`` ``domain_rand`` (or the terms it names) with its action delay on from
+        the first step."""
         if not self.is_eval:
             return self.domain_rand
-        if self.eval_domain_rand:
+        if self.eval_domain_rand is True:
             return replace(self.domain_rand, delay_after_global_steps=0)
+        if self.eval_domain_rand:
+            return replace(self.domain_rand.only(self.eval_domain_rand), delay_after_global_steps=0)
         return DomainRandConfig.off()
 
     @property

@@ -17,11 +17,15 @@ generator.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-__all__ = ["DomainRandConfig", "DomainRandomizer"]
+__all__ = ["DOMAIN_RAND_TERMS", "DomainRandConfig", "DomainRandomizer"]
+
+#: the switches of :class:`DomainRandConfig`, one per row of the table above
+DOMAIN_RAND_TERMS = ("friction", "base_mass", "base_com", "motor_strength", "push", "action_delay")
 
 
 @dataclass
@@ -47,6 +51,15 @@ class DomainRandConfig:
     def off(cls) -> DomainRandConfig:
         """Every term disabled (nominal robot)."""
         return cls(friction=False, base_mass=False, base_com=False, motor_strength=False, push=False, action_delay=False)
+
+    def only(self, terms: Iterable[str]) -> DomainRandConfig:
+        """This config with the terms of :data:`DOMAIN_RAND_TERMS` named in ``terms`` on and the
+        others off, ranges kept (ValueError naming an unknown term)."""
+        terms = list(terms)
+        bad = [t for t in terms if t not in DOMAIN_RAND_TERMS]
+        if bad:
+            raise ValueError(f"unknown domain randomisation term(s) {bad}; valid: {list(DOMAIN_RAND_TERMS)}")
+        return replace(self, **{t: t in terms for t in DOMAIN_RAND_TERMS})
 
     def __post_init__(self) -> None:
         for name in ("friction_range", "base_mass_range", "base_com_range", "motor_strength_range"):

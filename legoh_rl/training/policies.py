@@ -36,7 +36,7 @@ class ZeroPolicy(TensorDictModuleBase):
 
 
 def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
-             trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool = False,
+             trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool | tuple[str, ...] = False,
              **gait) -> HikingEnv:
     """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds), its tensors on
     ``device``, its worlds stepped by ``physics`` (``mujoco`` | ``warp``), with the training's
@@ -58,7 +58,7 @@ def oracle_networks(state: dict) -> OracleNetworks:
 
 
 def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint",
-                 device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool = False):
+                 device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool | tuple[str, ...] = False):
     """``(env, policy, kind)`` to evaluate a ``unified.py`` checkpoint on ``protocol`` (on ``device``,
     the worlds stepped by ``physics``, randomised when ``domain_rand``: :func:`eval_env`)."""
     meta = state["meta"]
@@ -75,7 +75,7 @@ def load_student(state: dict, protocol, variants: int, seed: int, num_threads=No
 
 def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2, seed: int = 0,
                 num_threads=None, trails=None, device: torch.device | str = "cpu", physics: str = "mujoco",
-                domain_rand: bool = False):
+                domain_rand: bool | tuple[str, ...] = False):
     """``(env, policy, kind)`` for a checkpoint path, or ``"zero"`` for the PD-hold baseline, the
     policy and the env's tensors on ``device``, the worlds stepped by ``physics`` (``mujoco`` |
     ``warp``, docs/gpu_physics.md), with the training's randomisation when ``domain_rand``
