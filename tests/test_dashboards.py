@@ -85,6 +85,9 @@ def test_training_logs_the_new_panels(tmp_path):
         assert sum(row[f"curriculum/share_level{k}"] for k in range(5)) == pytest.approx(1.0)
     # a 0.1 s episode is 5 control steps: no ended episode is longer
     assert max(row["episode/length"] for row in rows) <= 5
+    # 8 env steps per world per iteration; the action delay waits for 24 x 8000 of them
+    assert [row["env/global_steps"] for row in rows] == [8, 16]
+    assert [row["env/action_delay_steps"] for row in rows] == [0, 0]
 
 
 def test_wandb_run_keeps_the_env_config_and_logs_once_per_iteration(tmp_path, monkeypatch):

@@ -66,6 +66,9 @@ class RunLog:
             "curriculum/mean_level": float(env.curriculum.levels.mean()),
             "env/diverged_total": env.diverged_total,
             "env/bad_action_total": env.bad_action_total,
+            # env steps per world, against which domain_rand's action delay switches on
+            "env/global_steps": env.global_steps,
+            "env/action_delay_steps": env.randomizer.delay_steps(env.global_steps),
         })
         stats.update(self._env_seconds(env))
         if iteration % self.every == 0:
