@@ -145,7 +145,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("student_h1_randommix", "checkpoints/student_h1_randommix.pt"),
             ("student_h1_trails", "checkpoints/student_h1.pt"),
             ("oracle_h1_footholds", "checkpoints/oracle_h1.pt"),
-            ("oracle_g1_trails", "checkpoints/oracle_g1_trails.pt")]
+            ("oracle_g1_trails", "checkpoints/oracle_g1_trails.pt"),
+            ("g1_lego_h", "checkpoints/student_g1.pt")]
 SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
             "unified": ("env", "ppo", "student", "dagger_iters", "dagger_beta0", "dagger_decay_iters", "dagger_epochs",
                         "dagger_replay", "imitation", "hlm", "torch_threads")}
