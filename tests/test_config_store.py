@@ -10,6 +10,7 @@ import yaml
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.envs import HikingEnvConfig
+from legoh_rl.envs.randomization import DomainRandConfig
 from legoh_rl.envs.sensors import DepthCameraConfig
 from legoh_rl.training.builders import env_config
 from legoh_rl.training.config_store import RECIPE_ENV_KEYS, env_defaults
@@ -34,8 +35,24 @@ def test_env_defaults_are_the_dataclass_fields():
     assert d["num_envs"] == 64 and d["feet_edge_from_level"] == 4 and d["reward_overrides"] == {}
     assert d["domain_rand"] is True and d["curriculum"] is True  # switches, not the nested configs
     fields = {f.name for f in dataclasses.fields(HikingEnvConfig)}
-    assert set(RECIPE_ENV_KEYS) - {"depth_source"} <= fields  # depth_source: depth_camera.source
+    # depth_source: depth_camera.source; action_delay_after_steps: domain_rand.delay_after_global_steps
+    assert set(RECIPE_ENV_KEYS) - {"depth_source", "action_delay_after_steps"} <= fields
     assert d["depth_source"] == DepthCameraConfig().source == "auto"
+    assert d["action_delay_after_steps"] == DomainRandConfig().delay_after_global_steps == 24 * 8000
+
+
+def test_action_delay_after_steps_moves_the_delay_onset_of_training():
+    """The paper turns the one-step action delay on after 24 x 8000 env steps per world; a run
+    shorter than that (every run here) can bring it forward from the recipe."""
+    assert env_config(composed("unified").env, "student").domain_rand.delay_after_global_steps == 192_000
+    ec = env_config(composed("unified", ["env.action_delay_after_steps=0"]).env, "student")
+    assert ec.domain_rand.delay_after_global_steps == 0 and ec.domain_rand.action_delay
+    assert ec.domain_rand.friction and ec.domain_rand.push  # the other terms stay as they were
+    off = env_config(composed("unified", ["env.domain_rand=false", "env.action_delay_after_steps=0"]).env, "student")
+    assert not off.domain_rand.action_delay
+    for bad in ("-1", "2.5", "True"):
+        with pytest.raises(ValueError, match=f"env.action_delay_after_steps must be an integer >= 0.*{bad}"):
+            env_config(composed("unified", [f"env.action_delay_after_steps={bad}"]).env, "student")
 
 
 @pytest.mark.parametrize("recipe, num_envs", [("oracle_ppo", 128), ("unified", 32)])

@@ -53,7 +53,9 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
 
     Keys the section leaves out (or sets to null) keep the dataclass's defaults, which are the only
     place env defaults are written. ``domain_rand: false`` and ``curriculum: false`` switch those off;
-    ``depth_source`` (``auto | host | warp``) is the depth camera's ``source``.
+    ``depth_source`` (``auto | host | warp``) is the depth camera's ``source``;
+    ``action_delay_after_steps`` (int >= 0) the env steps per world after which the randomisation's
+    one-step action delay starts (``0``: from the first step; no effect with ``domain_rand: false``).
     The env's device is not a key of the section: the recipe's ``device`` sets it (``overrides``).
 
     Raises:
@@ -87,8 +89,13 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         **{name: value(name, float) for name in ("episode_length_s", "cmd_speed", "gait_period", "gait_stance",
                                                  "gait_amplitude", "gait_feedforward")},
     )
+    delay_after = cfg.get("action_delay_after_steps")
+    if delay_after is not None and (isinstance(delay_after, bool) or int(delay_after) != delay_after or delay_after < 0):
+        raise ValueError(f"env.action_delay_after_steps must be an integer >= 0 (env steps per world), got {delay_after!r}")
     if not cfg.get("domain_rand", True):
         kwargs["domain_rand"] = DomainRandConfig.off()
+    elif delay_after is not None:
+        kwargs["domain_rand"] = DomainRandConfig(delay_after_global_steps=int(delay_after))
     if not cfg.get("curriculum", True):
         kwargs["curriculum"] = CurriculumConfig(enabled=False)
     if cfg.get("depth_source") is not None:
