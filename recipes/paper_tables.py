@@ -879,7 +879,8 @@ def parser() -> argparse.ArgumentParser:
                    help="also look evaluations up in DIR and keep each one there (its record and table.csv, "
                         "a few kB: docs/paper_tables/evals is the committed one)")
     p.add_argument("--into", type=Path, nargs="+", default=[], metavar="FILE",
-                   help="markdown files to write the tables into, between <!-- paper_tables:<table> --> markers")
+                   help="markdown files to write the tables into, between <!-- paper_tables:<table> --> markers "
+                        "(the nominal tables: refused with --domain-rand)")
     return p
 
 
@@ -924,6 +925,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                 args.num_threads, args.video, args.logger, args.domain_rand)
             if not args.checkpoints.is_dir():
                 raise ValueError(f"--checkpoints {str(args.checkpoints)!r} is not a folder")
+            if args.domain_rand and args.into:
+                # the markers hold the nominal benchmark: randomised figures there would pass for it
+                raise ValueError(f"--domain-rand with --into {[str(f) for f in args.into]}: the marked tables are the "
+                                 "nominal benchmark's; write the randomised tables with --out alone")
         into_files(args.into, {}, check_only=True)  # bad files or markers fail before any evaluation
     except ValueError as err:
         p.error(str(err))

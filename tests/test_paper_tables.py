@@ -306,6 +306,8 @@ def test_each_checkpoint_is_evaluated_once_and_a_failure_does_not_stop_the_other
     (["--trail-seeds", "1", "--categories", "randommix", "swamp"], "unknown categories ['swamp']"),
     (["--trail-seeds", "1", "--levels", "0", "7"], "levels [7] out of range; valid: 0..4"),
     (["--trail-seeds", "1", "--checkpoints", "/nonexistent/ck"], "--checkpoints '/nonexistent/ck' is not a folder"),
+    (["--trail-seeds", "1", "--domain-rand", "--into", "RESULTS.md"],
+     "--domain-rand with --into ['RESULTS.md']: the marked tables are the nominal benchmark's"),
 ])
 def test_bad_command_lines_are_refused_naming_the_bad_value(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_:
