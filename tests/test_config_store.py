@@ -50,7 +50,7 @@ def test_action_delay_after_steps_moves_the_delay_onset_of_training():
     assert ec.domain_rand.friction and ec.domain_rand.push  # the other terms stay as they were
     off = env_config(composed("unified", ["env.domain_rand=false", "env.action_delay_after_steps=0"]).env, "student")
     assert not off.domain_rand.action_delay
-    for bad in ("-1", "2.5", "True"):
+    for bad in ("-1", "2.5", "True", "soon"):
         with pytest.raises(ValueError, match=f"env.action_delay_after_steps must be an integer >= 0.*{bad}"):
             env_config(composed("unified", [f"env.action_delay_after_steps={bad}"]).env, "student")
 

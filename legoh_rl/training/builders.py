@@ -90,7 +90,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
                                                  "gait_amplitude", "gait_feedforward")},
     )
     delay_after = cfg.get("action_delay_after_steps")
-    if delay_after is not None and (isinstance(delay_after, bool) or int(delay_after) != delay_after or delay_after < 0):
+    if delay_after is not None and (isinstance(delay_after, bool) or not isinstance(delay_after, int) or delay_after < 0):
         raise ValueError(f"env.action_delay_after_steps must be an integer >= 0 (env steps per world), got {delay_after!r}")
     if not cfg.get("domain_rand", True):
         kwargs["domain_rand"] = DomainRandConfig.off()
