@@ -90,6 +90,9 @@ def validate(cfg: DictConfig) -> None:
     require_positive("ppo", cfg.ppo, "learning_rate")
     require_count("checkpoint", cfg.checkpoint, "every")
     require_count("", cfg, "dagger_epochs", "torch_threads")
+    fraction = cfg.get("encoder_grad_fraction", 1.0)
+    if isinstance(fraction, bool) or not isinstance(fraction, (int, float)) or not 0 < fraction <= 1:
+        raise ValueError(f"encoder_grad_fraction must be a number in (0, 1], got {fraction!r}")
     resolve_device(cfg.get("device"))
     runner.collector_workers(cfg)
     decay = cfg.get("dagger_decay_iters")
@@ -103,6 +106,11 @@ def validate(cfg: DictConfig) -> None:
     if branch is not None and not Path(branch).is_file():
         raise FileNotFoundError(f"checkpoint.branch: no checkpoint at {branch}")
     check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
+    dagger_mb = cfg.get("dagger_minibatches")
+    if dagger_mb is not None and (isinstance(dagger_mb, bool) or not isinstance(dagger_mb, int) or
+                                  not 1 <= dagger_mb <= cfg.env.num_envs):
+        raise ValueError(f"dagger_minibatches must be null (ppo.num_minibatches) or an integer in [1, env.num_envs="
+                         f"{cfg.env.num_envs}], got {dagger_mb!r}")
     if cfg.ppo.num_minibatches > cfg.env.num_envs:
         raise ValueError(f"ppo.num_minibatches ({cfg.ppo.num_minibatches}) cannot exceed env.num_envs "
                          f"({cfg.env.num_envs}): minibatches split the worlds")
@@ -233,7 +241,7 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     oracle = frozen_oracle(cfg)
     oracle_config = dataclasses.asdict(teacher.networks.cfg) if oracle else None
     student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std),
-                           oracle_config=oracle_config)
+                           oracle_config=oracle_config, record_features=grad_fraction(cfg) < 1)
     if oracle:  # RMA: the teacher's actor, frozen, is the student's locomotion
         student.actor.module[0].module.load_state_dict(teacher.networks.actor.state_dict())
     student.policy.to(device)  # perception (in its hold) and locomotion
@@ -315,6 +323,12 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
     p.iteration, p.frames = state["iteration"], state["frames"]
 
 
+def grad_fraction(cfg: DictConfig) -> float:
+    """``encoder_grad_fraction``: the share of tick steps whose perception encoder runs (with
+    gradients) in a training pass; the features recorded while acting stand in on the others."""
+    return float(cfg.get("encoder_grad_fraction", 1.0))
+
+
 def beta_at(iteration: int, cfg: DictConfig) -> float:
     """P(teacher acts) at an iteration: ``dagger_beta0`` decayed linearly to 0 over
     ``dagger_decay_iters`` (default: the whole DAgger phase, ``dagger_iters``). A shorter decay
@@ -352,12 +366,15 @@ def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str
     # losses no longer need (GAE is done). Minibatches are then slices (views) of it. Gathering
     # per minibatch copied ~165 MB of depth stacks into fresh pages each time, ~28% of a profiled
     # CPU run (BENCHMARKS.md, "Unified training: minibatches without copies").
-    train = data.exclude("next")[torch.randperm(data.shape[0])]
-    size = -(-data.shape[0] // cfg.ppo.num_minibatches)
+    minibatches = int(cfg.ppo.num_minibatches if rl else cfg.get("dagger_minibatches") or cfg.ppo.num_minibatches)
+    train = data.exclude("next")
+    if minibatches > 1:  # one minibatch holds every world: no order to draw (and no copy)
+        train = train[torch.randperm(data.shape[0])]
+    size = -(-data.shape[0] // minibatches)
     for _ in range(cfg.ppo.num_epochs if rl else int(cfg.dagger_epochs)):
         for start in range(0, data.shape[0], size):
             mb = train[start : start + size]
-            student_pass(p.student, mb)
+            student_pass(p.student, mb, grad_fraction(cfg))
             terms = {k: v for k, v in dagger(mb).items() if k.startswith("loss_")}
             if use_hlm:
                 terms.update({k: v for k, v in hlm(mb).items() if k.startswith("loss_")})

@@ -332,3 +332,97 @@ def test_explicit_out_shapes_are_checked_against_the_module() -> None:
         PerceptionHold(CountingPerception(), out_shapes={"goals_uni": (5, 2)}, example_input=example_td())
     with pytest.raises(RuntimeError, match="dry run of the perception module on example_input failed"):
         PerceptionHold(CountingPerception(), example_input=TensorDict({"pixels": torch.ones(2, 1, 4, 4)}, [2]))
+
+
+class CountingEncoder(nn.Module):
+    """A learnable encoder (pixels -> 4 features) that records how many samples it ran on."""
+
+    out_dim = 4
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lin = nn.Linear(4, 4)
+        self.sizes: list[int] = []
+
+    def forward(self, pixels: torch.Tensor) -> torch.Tensor:
+        self.sizes.append(pixels.shape[:-3].numel())
+        return self.lin(pixels.flatten(-3)[..., :4] / 1000.0)
+
+
+def encoder_gru_perception(hidden: int = 8) -> TensorDictSequential:
+    torch.manual_seed(0)
+    enc = TensorDictModule(CountingEncoder(), in_keys=["pixels"], out_keys=["feat"])
+    gru = GRUModule(input_size=4, hidden_size=hidden, in_keys=["feat", "rs", "is_init"],
+                    out_keys=["emb", ("next", "rs")])
+    heads = TensorDictModule(Heads(hidden), in_keys=["emb"], out_keys=list(SHAPES))
+    return TensorDictSequential(enc, gru, heads)
+
+
+def test_recorded_features_let_training_run_the_encoder_on_a_fraction_of_the_ticks() -> None:
+    perception = encoder_gru_perception()
+    encoder = perception[0].module
+    env, hold, policy = make(batch=4, p_term=0.05, seed=8, perception=perception, feature_key="feat")
+    assert hold.feature_shape == (4,) and "feat" in hold.out_keys
+    env.append_transform(perception[1].make_tensordict_primer())
+    with torch.no_grad():
+        ro = env.rollout(60, policy, break_when_any_done=False)
+    eff = ro["cam_tick"][..., 0] | ro["is_init"][..., 0]
+    # acting records the encoder's output on the ticking worlds, zeros elsewhere
+    fresh = encoder(ro["pixels"])
+    torch.testing.assert_close(ro["feat"][eff], fresh[eff])
+    assert torch.equal(ro["feat"][~eff], torch.zeros_like(ro["feat"][~eff]))
+    assert not ro["feat"].requires_grad
+
+    drop = ("z_uni", "delta_g0", "goals_uni", "goal_next", "emb")
+    full = ro.exclude(*drop, "feat")
+    encoder.sizes.clear()
+    hold.hold_forward(full)
+    padded = 4 * int(eff.sum(1).max())  # the ticks compacted per row, short rows padded
+    assert encoder.sizes == [padded]  # without recorded features: every tick
+
+    torch.manual_seed(3)
+    part = ro.exclude(*drop)
+    encoder.sizes.clear()
+    hold.hold_forward(part, encoder_grad_fraction=0.5)
+    assert len(encoder.sizes) == 1 and 0 < encoder.sizes[0] < padded
+    # the weights have not moved since acting: recorded and recomputed features agree
+    for key in ("z_uni", "delta_g0", "goals_uni", "goal_next"):
+        torch.testing.assert_close(part[key], full[key], rtol=1e-5, atol=1e-6)
+        torch.testing.assert_close(part[key], ro[key], rtol=1e-5, atol=1e-5)
+    part["z_uni"].sum().backward()
+    assert encoder.lin.weight.grad is not None and encoder.lin.weight.grad.abs().sum() > 0
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in perception[1].parameters())
+
+    # moved encoder weights: the ticks it skipped keep the recorded (acting) features
+    with torch.no_grad():
+        encoder.lin.weight.add_(1.0)
+    encoder.sizes.clear()
+    tiny = ro.exclude(*drop)
+    hold.hold_forward(tiny, encoder_grad_fraction=1e-12)  # no tick drawn: the encoder does not run
+    assert encoder.sizes == []
+    torch.testing.assert_close(tiny["z_uni"], ro["z_uni"], rtol=1e-5, atol=1e-5)
+    moved = ro.exclude(*drop)
+    hold.hold_forward(moved, encoder_grad_fraction=1.0)  # fraction 1: every tick, the new weights
+    assert not torch.allclose(moved["z_uni"], ro["z_uni"])
+
+
+def test_recorded_features_errors() -> None:
+    perception = encoder_gru_perception()
+    env, hold, policy = make(batch=2, perception=perception, feature_key="feat")
+    env.append_transform(perception[1].make_tensordict_primer())
+    with torch.no_grad():
+        ro = env.rollout(6, policy)
+    for bad in (0.0, -0.5, 1.5):
+        with pytest.raises(ValueError, match="encoder_grad_fraction"):
+            hold.hold_forward(ro.clone(), encoder_grad_fraction=bad)
+    with pytest.raises(ValueError, match="feature_key='emb'"):
+        PerceptionHold(encoder_gru_perception(), tick_key="cam_tick", out_shapes=SHAPES, feature_key="emb")
+    with pytest.raises(ValueError, match="TensorDictSequential"):
+        PerceptionHold(CountingPerception(), tick_key="cam_tick", out_shapes=SHAPES, feature_key="z_uni")
+    no_width = encoder_gru_perception()
+    del CountingEncoder.out_dim
+    try:
+        with pytest.raises(ValueError, match="out_dim"):
+            PerceptionHold(no_width, tick_key="cam_tick", out_shapes=SHAPES, feature_key="feat")
+    finally:
+        CountingEncoder.out_dim = 4

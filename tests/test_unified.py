@@ -325,3 +325,49 @@ def test_a_blind_rma_b_student_trains_and_evaluates_without_the_camera(teacher, 
     assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 2
     with pytest.raises(ValueError, match="perception 'rmah' reads depth"):
         unified.build(tiny(teacher, tmp_path / "other", *RMA, "env.depth=false"))
+
+
+def test_the_cheap_update_trains_resumes_and_keeps_snapshots(teacher, tmp_path):
+    """experiment=student_h1's switches: one DAgger minibatch, the encoder on a fraction of the
+    ticks (the features recorded while acting on the rest), slim policy snapshots."""
+    cheap = ["dagger_iters=10", "dagger_minibatches=1", "dagger_epochs=1", "encoder_grad_fraction=0.25",
+             "checkpoint.snapshot_every=1"]
+    p = unified.build(tiny(teacher, tmp_path / "probe", *cheap))
+    assert p.student.hold.feature_key == "perception_features"
+    with torch.no_grad():
+        data = p.collect_env.rollout(10, p.behaviour, break_when_any_done=False)
+    assert data["perception_features"].shape == (4, 10, p.student.hold.feature_shape[0])
+    before = [q.detach().clone() for q in p.student.perception.parameters()]
+    stats = unified.update(p, data, iteration=0, cfg=tiny(teacher, tmp_path / "probe", *cheap))
+    assert stats["train/phase_rl"] == 0.0 and torch.isfinite(torch.tensor(stats["loss/im_action"]))
+    moved = [not torch.equal(a, b) for a, b in zip(before, p.student.perception.parameters(), strict=True)]
+    assert all(moved), "every perception weight, the encoder's included, gets a gradient"
+    # a default student records nothing while acting
+    assert unified.build(tiny(teacher, tmp_path / "plain")).student.hold.feature_key is None
+
+    out = unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=80", *cheap))
+    assert out["iteration"] == 2
+    snaps = sorted(p.name for p in (tmp_path / "run" / "snapshots").iterdir())
+    assert snaps == ["frames000000040.pt", "frames000000080.pt"]
+    slim = load_checkpoint(tmp_path / "run" / "snapshots" / "frames000000040.pt")
+    assert slim["meta"]["kind"] == "student" and "optim" not in slim
+    again = unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=120", "checkpoint.resume=auto", *cheap))
+    assert again["iteration"] == 3 and (tmp_path / "run" / "snapshots" / "frames000000120.pt").is_file()
+
+
+@pytest.mark.parametrize("extra,match", [
+    ("encoder_grad_fraction=0", r"encoder_grad_fraction must be a number in \(0, 1\], got 0"),
+    ("encoder_grad_fraction=1.5", r"encoder_grad_fraction must be a number in \(0, 1\], got 1.5"),
+    ("encoder_grad_fraction=half", r"encoder_grad_fraction must be a number in \(0, 1\], got 'half'"),
+    ("dagger_minibatches=0", r"dagger_minibatches must be null \(ppo.num_minibatches\) or an integer in \[1, "
+                             r"env.num_envs=4\], got 0"),
+    ("dagger_minibatches=5", r"dagger_minibatches .* got 5"),
+])
+def test_bad_cheap_update_settings_are_refused(teacher, tmp_path, extra, match):
+    with pytest.raises(ValueError, match=match):
+        unified.build(tiny(teacher, tmp_path, extra))
+
+
+def test_bad_snapshot_every_is_refused(teacher, tmp_path):
+    with pytest.raises(ValueError, match=r"checkpoint.snapshot_every must be an integer >= 0 .*got -2"):
+        unified.train(tiny(teacher, tmp_path, "checkpoint.snapshot_every=-2"))

@@ -21,6 +21,10 @@ once:
   the trainer's state, the env (curriculum, randomisation), the RNG states, the counters, the
   resolved config and the provenance (``experiment``, ``stage`` in the meta block); the logs are
   flushed right after, so they hold exactly what the checkpoint covers (:class:`RunLog`);
+* every ``checkpoint.snapshot_every`` iterations (0: never), a slim copy of the policy
+  (:func:`~legoh_rl.training.checkpoint.export_policy`) goes to
+  ``<checkpoint.dir>/snapshots/frames<run frames>.pt``: the learning curve's points, evaluated
+  later on the benchmark (``recipes/evaluate.py``);
 * every ``logger.video_every`` iterations (0: never), a video of the checkpoint's policy, one
   robot per category at the worlds' median level (:func:`~legoh_rl.training.videos.policy_video`),
   goes to ``<checkpoint.dir>/videos/`` and the wandb run.
@@ -44,7 +48,7 @@ from torchrl.envs.utils import ExplorationType
 from tqdm import tqdm
 
 from legoh_rl.training import ray_collection  # works without Ray (an optional extra)
-from legoh_rl.training.checkpoint import CheckpointError, rng_state, save_checkpoint
+from legoh_rl.training.checkpoint import CheckpointError, export_policy, rng_state, save_checkpoint
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.interrupt import GracefulStop
 from legoh_rl.training.run_dir import open_run_dir
@@ -123,6 +127,9 @@ def train(cfg: DictConfig, validate: Callable[[DictConfig], None], build: Callab
         checkpoint, ``interrupted`` (the signal number).
     """
     validate(cfg)
+    snapshots = cfg.checkpoint.get("snapshot_every", 0)
+    if snapshots is not None and (isinstance(snapshots, bool) or not isinstance(snapshots, int) or snapshots < 0):
+        raise ValueError(f"checkpoint.snapshot_every must be an integer >= 0 (iterations; 0: none), got {snapshots!r}")
     cfg = copy.deepcopy(cfg)
     with open_dict(cfg):  # the run's config (logs, checkpoint) records the device it ran on: "auto" resolved
         cfg.device = str(resolve_device(cfg.get("device")))
@@ -155,11 +162,13 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
         return path
 
     video_every = int(cfg.logger.get("video_every") or 0)  # 0: no training videos
+    snapshot_every = int(cfg.checkpoint.get("snapshot_every") or 0)  # 0: none
     summary: dict = {}
     bar = tqdm(total=remaining, unit="frames", desc=t.desc)
     collected = time.perf_counter()
     try:
         for data in collector:
+            data = data.copy()  # a new structure over the same tensors: the update's new keys stay out of the buffer
             if pool is not None:
                 pool.pull()  # the workers' curriculum and counters, for the logs and the checkpoint
             started = time.perf_counter()
@@ -178,6 +187,10 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
             bar.set_postfix(t.postfix(stats))
             if t.iteration % cfg.checkpoint.every == 0:
                 checkpoint()
+            if snapshot_every and t.iteration % snapshot_every == 0:  # the policy as it was, for later evaluation
+                if t.iteration % cfg.checkpoint.every:
+                    checkpoint()
+                export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / f"frames{t.frames:09d}.pt")
             if video_every and t.iteration % video_every == 0:
                 path = checkpoint() if t.iteration % cfg.checkpoint.every else ckpt_dir / "last.pt"
                 run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",
@@ -207,8 +220,12 @@ def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames:
     if not _pooled(cfg, workers):
         # torchrl's episode counters: the return and length of each ended episode, for the logs
         collect_env = TransformedEnv(t.collect_env, Compose(RewardSum(), StepCounter()))
+        # return_same_td: the collector hands out its own rollout buffer instead of a clone of it
+        # (the loop is done with a batch before the next is collected; _loop takes a shallow copy
+        # so the entries an update adds stay out of the buffer). The clone copied every depth
+        # stack twice (root and next), ~0.2 s of a student's 0.6 s collection (BENCHMARKS.md).
         return Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=total_frames,
-                         **kwargs), None
+                         return_same_td=True, **kwargs), None
     if collector_backend(cfg) == "ray":  # K Ray actors, each its slice (legoh_rl/training/ray_collection.py)
         collector = ray_collection.make_ray_collector(
             t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, total_frames,

@@ -20,6 +20,7 @@ from torchrl.modules.utils import get_primers_from_module
 
 from legoh_rl.envs import HikingEnv
 from legoh_rl.modules.configs import LocomotionConfig, OracleConfig, perception_config
+from legoh_rl.modules.keys import PerceptionKeys
 from legoh_rl.modules.locomotion import make_locomotion_actor, make_oracle_locomotion_actor
 from legoh_rl.modules.oracle import OracleActorNet
 from legoh_rl.modules.perception import make_perception
@@ -95,7 +96,8 @@ def hold_keys(perception) -> tuple[str, ...]:
 
 
 def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
-                 init_std: float = 1.0, oracle_config: Mapping | None = None) -> StudentPolicy:
+                 init_std: float = 1.0, oracle_config: Mapping | None = None,
+                 record_features: bool = False) -> StudentPolicy:
     """Build the student sized for ``env`` (student or eval mode; depth on, or off for a
     perception that reads none: RMA-B).
 
@@ -108,6 +110,10 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
             teacher's).
         oracle_config: the teacher's ``OracleConfig`` fields for a frozen-oracle locomotion
             (RMA, see :func:`student_networks`); ``None``: the student's own MLP.
+        record_features: acting also records the perception encoder's output
+            (``perception_features``) so that training passes can run the encoder on a fraction
+            of the ticks (:class:`PerceptionHold`'s ``feature_key``); only for perceptions built
+            as encoder then memory (``tcvit``, ``tcvit_ct``, ``vanilla``, ``eph``).
     """
     spec = env.observation_spec
     size = spec["depth"].shape[-1] if env.cfg.depth_enabled else env.cfg.depth_camera.width
@@ -116,7 +122,9 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
     if not env.cfg.depth_enabled and {"depth", "depth_goal_stack"} & set(perc.in_keys):
         raise ValueError(f"perception {perception!r} reads depth: build the env with the depth camera "
                          "(mode 'student' or 'eval', depth not false)")
-    return StudentPolicy(perc, PerceptionHold(perc, hold_keys=hold_keys(perc)), actor, pcfg.io.history_len)
+    feature_key = PerceptionKeys().features if record_features else None
+    hold = PerceptionHold(perc, hold_keys=hold_keys(perc), feature_key=feature_key)
+    return StudentPolicy(perc, hold, actor, pcfg.io.history_len)
 
 
 def student_env(env: HikingEnv, student: StudentPolicy) -> TransformedEnv:

@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from tensordict.utils import NestedKey, unravel_key, unravel_key_list
 from torchrl.data import Binary, Composite, TensorSpec, Unbounded
 from torchrl.envs import TensorDictPrimer
@@ -79,6 +79,19 @@ class PerceptionHold(TensorDictModuleBase):
     on the tick steps only and broadcasts each to the following non-tick steps (index
     gather), reproducing what the policy held while acting.
 
+    **Cheaper training passes: the encoder's features recorded while acting.** With
+    ``feature_key`` (the output of the perception's first module, its encoder, e.g. TC-ViT's
+    ``perception_features``), acting also writes that feature for every world (the fresh value
+    on ticking worlds, zeros elsewhere; no gradient), so the collected batch holds what the
+    encoder produced at each tick. :meth:`hold_forward` with ``encoder_grad_fraction=f < 1``
+    then runs the encoder, with gradients, on a random fraction ``f`` of the tick steps only and
+    takes the recorded features on the others, before the rest of the perception module (memory,
+    heads) runs on every tick as usual. The encoder's forward and backward pass, most of a
+    training pass for TC-ViT, then cost ``f`` of a full pass; the recorded features are those of
+    the weights that acted (exact on the first pass over an on-policy batch, a few optimiser
+    steps old on later passes), and the encoder's gradient is an estimate from the sampled ticks
+    (``f`` times the full one in expectation; not rescaled).
+
     **Held shapes.** The primer and :meth:`output_spec` need the feature shape (no batch
     dims) of every ``hold_keys`` output. They are resolved per key, first match wins:
 
@@ -136,6 +149,9 @@ class PerceptionHold(TensorDictModuleBase):
             are ignored.
         example_input: ``TensorDictBase`` or ``Composite`` to dry-run the module on when
             its shapes are not otherwise known (see "Held shapes"). ``None``: no dry run.
+        feature_key: the only output of the perception's first module (its encoder) when the
+            perception is a ``TensorDictSequential`` of two or more modules: acting records it
+            (see "Cheaper training passes"). ``None`` (default): nothing recorded.
 
     Example:
         >>> hold = PerceptionHold(tcvit)                  # tcvit writes z_uni, delta_g0, goals_uni
@@ -162,6 +178,7 @@ class PerceptionHold(TensorDictModuleBase):
         recurrent_keys: Sequence[NestedKey] | None = None,
         out_shapes: Mapping[NestedKey, Sequence[int]] | None = None,
         example_input: TensorDictBase | Composite | None = None,
+        feature_key: NestedKey | None = None,
     ) -> None:
         super().__init__()
         if not (hasattr(perception, "in_keys") and hasattr(perception, "out_keys")):
@@ -197,6 +214,12 @@ class PerceptionHold(TensorDictModuleBase):
         if recurrent_keys is None:
             recurrent_keys = [k for k in p_in if _next(k) in p_out]
         self.recurrent_keys = unravel_key_list(list(recurrent_keys))
+        self.feature_key = None if feature_key is None else unravel_key(feature_key)
+        self._encoder = self._rest = None
+        if self.feature_key is not None:
+            self._encoder, self._rest = self._split_encoder(perception, self.feature_key)
+        #: the recorded feature's shape (the encoder's ``out_dim``), ``None`` without ``feature_key``
+        self.feature_shape = None if self._encoder is None else (int(self._encoder_dim(self._encoder)),)
         resolved = self._resolve_shapes(out_shapes, example_input)
         self.out_shapes = {k: shape for k, (shape, _) in resolved.items()}
         self.shape_sources = {k: src for k, (_, src) in resolved.items()}
@@ -211,8 +234,32 @@ class PerceptionHold(TensorDictModuleBase):
             + [_next(h) for h in self.held_keys.values()]
             + [_next(self.valid_key)]
             + [_next(r) for r in self.recurrent_keys]
+            + ([] if self.feature_key is None else [self.feature_key])
         )
         self.out_keys = list(dict.fromkeys(out_keys))
+
+    @staticmethod
+    def _encoder_dim(encoder) -> int:
+        dim = getattr(getattr(encoder, "module", encoder), "out_dim", None)
+        if not isinstance(dim, int):
+            raise ValueError(
+                "PerceptionHold: feature_key needs the encoder (the perception's first module) to "
+                f"declare its output width as an int attribute out_dim; {type(encoder).__name__} has {dim!r}"
+            )
+        return dim
+
+    @staticmethod
+    def _split_encoder(perception, feature_key) -> tuple[TensorDictModuleBase, TensorDictSequential]:
+        """``(encoder, rest)`` of a perception whose first module writes ``feature_key`` alone."""
+        modules = list(getattr(perception, "module", ())) if isinstance(perception, TensorDictSequential) else []
+        if len(modules) < 2 or unravel_key_list(list(modules[0].out_keys)) != [feature_key]:
+            first = unravel_key_list(list(modules[0].out_keys)) if modules else None
+            raise ValueError(
+                f"PerceptionHold: feature_key={feature_key!r} needs a TensorDictSequential perception of "
+                f"two or more modules whose first writes only that key; got {type(perception).__name__} "
+                f"with first out_keys {first}"
+            )
+        return modules[0], TensorDictSequential(*modules[1:])
 
     # ------------------------------------------------------------------ held shapes
     def _spec_shapes(self) -> dict:
@@ -355,6 +402,25 @@ class PerceptionHold(TensorDictModuleBase):
                 )
         return out
 
+    def _run_cached(self, td: TensorDictBase, fraction: float) -> TensorDictBase:
+        """:meth:`_run` with the encoder on a random ``fraction`` of ``td``'s samples (any batch
+        shape) and the recorded ``feature_key`` on the others (detached)."""
+        feats = td.get(self.feature_key).detach().clone()
+        pick = torch.rand(td.batch_size, device=feats.device) < fraction
+        if bool(pick.any()):
+            sub = td.select(*self._encoder.in_keys, strict=False)[pick]
+            feats = feats.to(torch.get_default_dtype())
+            feats[pick] = self._encoder(sub).get(self.feature_key).to(feats.dtype)
+        rest = td.select(*self._rest.in_keys, strict=False)
+        rest.set(self.feature_key, feats)
+        out = self._rest(rest)
+        out = rest if out is None else out
+        for k in self.hold_keys:
+            if out.get(k, None) is None:
+                raise KeyError(f"PerceptionHold: the perception module did not write {k!r}")
+        self._check_output(out, rest.batch_dims)
+        return out
+
     def _has_state(self, td: TensorDictBase) -> bool:
         keys = [*self.held_keys.values(), self.valid_key]
         return all(td.get(k, None) is not None for k in keys)
@@ -414,6 +480,7 @@ class PerceptionHold(TensorDictModuleBase):
                 self._warned_no_state = True
         if not has_state:
             tick = torch.ones_like(tick)
+        out = None
         if bool(tick.all()):
             out = self._run(td)
             values = {k: out.get(k) for k in self.hold_keys}
@@ -431,10 +498,25 @@ class PerceptionHold(TensorDictModuleBase):
                 r: self._merge(td.get(r), tick, out.get(_next(r)), _next(r))
                 for r in self.recurrent_keys
             }
+        if self.feature_key is not None:
+            self._record_features(td, tick, out)
         return self._write(td, values, rec_next, batch)
 
+    def _record_features(self, td: TensorDictBase, tick: torch.Tensor, out: TensorDictBase | None) -> None:
+        """Write ``feature_key`` for every world: the encoder's output on ticking worlds (``out``
+        holds the ticking worlds, in order), zeros elsewhere; detached."""
+        if out is not None and bool(tick.all()):
+            td.set(self.feature_key, out.get(self.feature_key).detach())
+            return
+        feats = torch.zeros((*tick.shape, *self.feature_shape), device=td.device)
+        if out is not None:
+            fresh = out.get(self.feature_key).detach()
+            feats = feats.to(fresh.dtype)
+            feats[tick] = fresh
+        td.set(self.feature_key, feats)
+
     # ------------------------------------------------------------------ training
-    def hold_forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+    def hold_forward(self, tensordict: TensorDictBase, encoder_grad_fraction: float = 1.0) -> TensorDictBase:
         """Training: recompute ``hold_keys`` on the tick steps of ``[..., T]`` data, hold between.
 
         ``tensordict`` has time as its last batch dim (a Collector batch ``[N, T]``, or a
@@ -455,7 +537,16 @@ class PerceptionHold(TensorDictModuleBase):
         ``held_<k>`` values, exactly what the policy used; if those are not stored, the
         row's first step is treated as a tick. Writes ``hold_keys`` and ``goal_next`` for
         all ``[..., T]`` steps and returns ``tensordict``.
+
+        ``encoder_grad_fraction`` ``f`` in ``(0, 1]``: below 1, with ``feature_key`` set and the
+        recorded features in ``tensordict`` (and held state, so ticks are exactly those of
+        acting), the encoder runs on a random fraction ``f`` of the tick steps (torch's global
+        generator) and the recorded features stand in on the others (see "Cheaper training
+        passes"); otherwise every tick step runs the whole module.
         """
+        if not 0.0 < float(encoder_grad_fraction) <= 1.0:
+            raise ValueError(f"PerceptionHold.hold_forward: encoder_grad_fraction must lie in (0, 1], "
+                             f"got {encoder_grad_fraction!r}")
         td = tensordict
         if td.batch_dims == 0:
             raise ValueError(
@@ -464,8 +555,13 @@ class PerceptionHold(TensorDictModuleBase):
             )
         batch = td.batch_size
         n_rows, t_len = batch[:-1].numel(), batch[-1]
-        tdf = td.select(*self.in_keys, strict=False).reshape(n_rows, t_len)
+        cached = (float(encoder_grad_fraction) < 1.0 and self.feature_key is not None
+                  and td.get(self.feature_key, None) is not None)
+        keys = [*self.in_keys, self.feature_key] if cached else self.in_keys
+        tdf = td.select(*keys, strict=False).reshape(n_rows, t_len)
         tick, has_state = self._tick(tdf)
+        cached = cached and has_state  # without held state the ticks may differ from acting's
+        run = self._run if not cached else lambda x: self._run_cached(x, float(encoder_grad_fraction))
         tick = tick.clone()  # may alias the stored flag
         if not has_state:
             tick[:, 0] = True
@@ -478,7 +574,7 @@ class PerceptionHold(TensorDictModuleBase):
 
         values: dict = {}
         if bool(tick.any()):
-            sel = tdf.select(*self.perception.in_keys, strict=False)
+            sel = tdf.select(*self.perception.in_keys, *([self.feature_key] if cached else []), strict=False)
             if self.recurrent_keys:
                 counts = tick.sum(1)
                 k_max = int(counts.max())
@@ -487,12 +583,12 @@ class PerceptionHold(TensorDictModuleBase):
                 fill = (counts - 1).clamp_min(0).unsqueeze(-1)
                 comp = order.gather(1, torch.minimum(kpos, fill))  # [N, K] tick steps
                 with set_recurrent_mode(True):
-                    out = self._run(sel[rows, comp])
+                    out = run(sel[rows, comp])
                 rank = (torch.cumsum(tick.long(), 1) - 1).clamp_min(0)
                 idx = rank.gather(1, last)  # [N, T] position in the compact row
                 values = {k: out.get(k)[rows, idx] for k in self.hold_keys}
             else:
-                out = self._run(sel[tick])
+                out = run(sel[tick])
                 rank = torch.cumsum(tick.reshape(-1).long(), 0) - 1
                 flat_last = (rows * t_len + last).reshape(-1)
                 idx = rank[flat_last].clamp_min(0).reshape(n_rows, t_len)
