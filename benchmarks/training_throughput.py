@@ -1,24 +1,23 @@
 """Env steps/s of training against the env alone, in one run (H1).
 
     python benchmarks/training_throughput.py [--oracle-iters 8] [--student-iters 6] [--skip-student]
-        [--skip-oracle] [--oracle-update-threads 1 2] [--student-threads 1 2]
+        [--skip-oracle] [--oracle-update-threads 1 2] [--students student_h1_trails student_h1]
 
-Four measurements, each printed as env steps/s and as a ratio to the env alone at the same
-worlds count and threads:
+Each training rate is printed as env steps/s and as a ratio to its env alone (same worlds, mode
+and threads):
 
 * (a) the env alone under random actions: oracle mode with the oracle recipe's worlds (256, all
-  physics threads), and student mode (64x64 depth) with the committed student's (32 worlds,
-  one physics thread); measured before and after the training runs, and averaged, so drifting
-  machine load hits both sides;
+  physics threads), and the student env of each ``--students`` experiment (its worlds,
+  categories, levels and ``env.num_threads``, depth on); measured before and after the training
+  runs, and averaged, so drifting machine load hits both sides;
 * (b) oracle training, ``recipes/oracle_ppo.py experiment=oracle_h1_footholds`` (256 worlds on
   the whole benchmark, [256, 128, 64] MLPs, 5 epochs x 4 minibatches), once per
   ``--oracle-update-threads`` count (torch threads of the PPO update; collection keeps 1);
-* (c) student training, ``recipes/unified.py`` with the committed student's settings (32 worlds,
-  RandomMix levels 0-1, ``cpu`` TC-ViT, one thread, the locomotion replay window) and
-  ``checkpoints/oracle_h1.pt`` as the teacher: the DAgger phase, then the PPO + L_im + L_hie
-  phase (HLM on). ``--student-threads 1 2`` repeats (c), and the student env alone, with
-  ``torch_threads`` and ``env.num_threads`` at each count (one run alone on the machine can use
-  both cores; the committed students ran two side by side, one core each).
+* (c) student training, ``recipes/unified.py experiment=<name>`` for each ``--students``
+  experiment, with ``checkpoints/oracle_h1.pt`` as the teacher: the DAgger phase as it runs once
+  the teacher's share has decayed (the student acts, the teacher labels: ``dagger_decay_iters=1``),
+  then the PPO + L_im + L_hie phase (``dagger_iters=1``, HLM on). The experiments' own thread
+  counts (``torch_threads``, ``env.num_threads``: 2 for the committed ones) are kept.
 
 Training rates count collection and update time per iteration from the run's own
 ``metrics.jsonl`` (``train/collect_s`` + ``train/update_s``), leaving out the first iteration
@@ -42,6 +41,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.training.builders import env_config, gait_kwargs
+from legoh_rl.training.checkpoint import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "recipes"
@@ -49,13 +50,6 @@ sys.path.insert(0, str(RECIPES))
 
 import oracle_ppo  # noqa: E402
 import unified  # noqa: E402
-
-#: the committed student's settings (experiment student_h1_randommix, replay stage)
-STUDENT = ["env.num_envs=32", "env.categories=[randommix]", "env.levels=[0,1]", "env.variants=4",
-           "env.curriculum=false", "env.cmd_speed=0.5",
-           "env.reward_overrides={alive: 4.0, termination: -100.0}", "student.perception=tcvit",
-           "student.preset=cpu", "dagger_epochs=4",
-           "dagger_replay={capacity: 100000, batch_size: 2048, steps: 8}", "logger.backend=csv"]
 
 
 def compose_cfg(name: str, overrides: list[str]):
@@ -84,41 +78,41 @@ def training_rate(run_dir: Path) -> tuple[float, int]:
     return (timed[-1]["step"] - rows[0]["step"]) / seconds, len(timed)
 
 
-def student_env_cfg(threads: int) -> HikingEnvConfig:
-    """The committed student's env (student mode, RandomMix levels 0-1) with ``threads`` physics threads."""
-    return HikingEnvConfig(num_envs=32, mode="student", categories=("randommix",), levels=(0, 1), variants=4,
-                           num_threads=threads)
+def student_env(name: str):
+    """``(config, env config)`` of experiment ``name``: its env section in student mode (depth on),
+    with its teacher's gait clock, as ``recipes/unified.py`` builds it."""
+    cfg = compose_cfg("unified", [f"experiment={name}"])
+    return cfg, env_config(cfg.env, "student", **gait_kwargs(load_checkpoint(ROOT / cfg.teacher)["meta"]))
 
 
 def alone_rates(args) -> dict[str, float]:
-    """Env steps/s of the env alone: ``oracle`` (256 worlds, all threads) and ``student<k>`` per
-    thread count (torch's threads set to the same count)."""
+    """Env steps/s of the env alone: ``oracle`` (256 worlds, all threads) and each student
+    experiment's env (torch's threads set to its ``torch_threads``)."""
     rates = {}
     if not args.skip_oracle:
         torch.set_num_threads(1)  # the oracle recipe's collection (torch_threads=1; physics on all cores)
         rates["oracle"] = env_rate(HikingEnvConfig(num_envs=256, levels=(0, 1, 2, 3, 4), variants=8), args.env_steps)
-    if not args.skip_student:
-        for k in args.student_threads:
-            torch.set_num_threads(k)
-            rates[f"student{k}"] = env_rate(student_env_cfg(k), args.env_steps)
+    for name in [] if args.skip_student else args.students:
+        cfg, env_cfg = student_env(name)
+        torch.set_num_threads(int(cfg.torch_threads))
+        rates[name] = env_rate(env_cfg, args.env_steps)
     return rates
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--oracle-iters", type=int, default=8, help="oracle iterations (6,144 frames each)")
-    p.add_argument("--student-iters", type=int, default=6, help="student iterations per phase (768 frames each)")
+    p.add_argument("--student-iters", type=int, default=6, help="student iterations per phase")
     p.add_argument("--env-steps", type=int, default=200, help="timed control steps of the env alone")
     p.add_argument("--oracle-update-threads", type=int, nargs="+", default=[1],
                    help="update_threads of the oracle runs (one row per count)")
-    p.add_argument("--student-threads", type=int, nargs="+", default=[1],
-                   help="torch and physics threads of the student runs (one set of rows per count)")
+    p.add_argument("--students", nargs="+", default=["student_h1_trails", "student_h1"],
+                   help="unified experiments to measure (one pair of rows each)")
     p.add_argument("--skip-student", action="store_true")
     p.add_argument("--skip-oracle", action="store_true")
     args = p.parse_args()
-    for name in ("student_threads", "oracle_update_threads"):
-        if any(k < 1 for k in getattr(args, name)):
-            p.error(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
+    if any(k < 1 for k in args.oracle_update_threads):
+        p.error(f"--oracle-update-threads must be positive, got {args.oracle_update_threads}")
     teacher = ROOT / "checkpoints" / "oracle_h1.pt"
     before = alone_rates(args)
     rows = []
@@ -131,16 +125,17 @@ def main() -> None:
                                                         f"update_threads={k}", "logger.backend=csv"]))
             rows.append((f"(b) oracle training, 256 worlds, whole benchmark, update on {k} thread(s)", "oracle",
                          *training_rate(run)))
-        for k in [] if args.skip_student else args.student_threads:
-            frames = 32 * 24 * (args.student_iters + 1)
-            threads = [f"torch_threads={k}", f"env.num_threads={k}"]
-            for phase, extra in (("DAgger", ["dagger_iters=1000", "hlm.enabled=false"]),
-                                 ("PPO + L_im + L_hie", ["dagger_iters=1", "hlm.enabled=true", "hlm.warmup_iters=1"])):
-                run = Path(tmp) / f"{phase.split()[0].lower()}{k}"
-                torch.set_num_threads(k)
-                unified.train(compose_cfg("unified", STUDENT + threads + extra + [
-                    f"teacher={teacher}", f"checkpoint.dir={run}", f"collector.total_frames={frames}"]))
-                rows.append((f"(c) student training, {phase}, {k} thread(s)", f"student{k}", *training_rate(run)))
+        for name in [] if args.skip_student else args.students:
+            cfg, env_cfg = student_env(name)
+            frames = env_cfg.num_envs * int(cfg.collector.steps_per_env) * (args.student_iters + 1)
+            for phase, extra in (("DAgger", ["dagger_decay_iters=1"]),
+                                 ("PPO + L_im + L_hie", ["dagger_iters=1", "dagger_decay_iters=1", "hlm.enabled=true", "hlm.warmup_iters=1"])):
+                run = Path(tmp) / f"{name}-{phase.split()[0].lower()}"
+                torch.set_num_threads(int(cfg.torch_threads))
+                unified.train(compose_cfg("unified", [f"experiment={name}", *extra, f"teacher={teacher}",
+                                                      f"checkpoint.dir={run}", f"collector.total_frames={frames}",
+                                                      "checkpoint.snapshot_every=0", "logger.backend=csv"]))
+                rows.append((f"(c) student training, `{name}`, {phase}", name, *training_rate(run)))
     after = alone_rates(args)
     alone = {k: (before[k] + after[k]) / 2 for k in before}
     print("\n| measurement | env steps/s | ratio to the env alone |")
@@ -148,10 +143,10 @@ def main() -> None:
     if "oracle" in alone:
         print(f"| (a) env alone, oracle mode, 256 worlds (before / after: {before['oracle']:,.0f} / "
               f"{after['oracle']:,.0f}) | {alone['oracle']:,.0f} | 1.00 |")
-    for k in [] if args.skip_student else args.student_threads:
-        key = f"student{k}"
-        print(f"| (a) env alone, student mode, 32 worlds, {k} thread(s) (before / after: {before[key]:,.0f} / "
-              f"{after[key]:,.0f}) | {alone[key]:,.0f} | 1.00 |")
+    for name in [] if args.skip_student else args.students:
+        _, env_cfg = student_env(name)
+        print(f"| (a) env alone, `{name}`'s student env ({env_cfg.num_envs} worlds, {env_cfg.num_threads} thread(s); "
+              f"before / after: {before[name]:,.0f} / {after[name]:,.0f}) | {alone[name]:,.0f} | 1.00 |")
     for name, mode, rate, iters in rows:
         print(f"| {name} ({iters} iterations) | {rate:,.0f} | {rate / alone[mode]:.2f} |")
 
