@@ -327,13 +327,13 @@ def test_a_blind_rma_b_student_trains_and_evaluates_without_the_camera(teacher, 
         unified.build(tiny(teacher, tmp_path / "other", *RMA, "env.depth=false"))
 
 
-def test_the_cheap_update_trains_resumes_and_keeps_snapshots(teacher, tmp_path):
+def test_the_cheap_update_trains_resumes_and_keeps_snapshots(teacher, tmp_path, monkeypatch):
     """experiment=student_h1's switches: one DAgger minibatch, the encoder on a fraction of the
     ticks (the features recorded while acting on the rest), slim policy snapshots."""
-    cheap = ["dagger_iters=10", "dagger_minibatches=1", "dagger_epochs=1", "encoder_grad_fraction=0.25",
-             "checkpoint.snapshot_every=1"]
+    cheap = ["dagger_iters=10", "dagger_minibatches=2", "minibatch_split=strided", "fused_adam=true",
+             "dagger_epochs=1", "encoder_grad_fraction=0.25", "checkpoint.snapshot_every=1"]
     p = unified.build(tiny(teacher, tmp_path / "probe", *cheap))
-    assert p.student.hold.feature_key == "perception_features"
+    assert p.student.hold.feature_key == "perception_features" and p.optim.defaults["fused"]
     with torch.no_grad():
         data = p.collect_env.rollout(10, p.behaviour, break_when_any_done=False)
     assert data["perception_features"].shape == (4, 10, p.student.hold.feature_shape[0])
@@ -342,8 +342,21 @@ def test_the_cheap_update_trains_resumes_and_keeps_snapshots(teacher, tmp_path):
     assert stats["train/phase_rl"] == 0.0 and torch.isfinite(torch.tensor(stats["loss/im_action"]))
     moved = [not torch.equal(a, b) for a, b in zip(before, p.student.perception.parameters(), strict=True)]
     assert all(moved), "every perception weight, the encoder's included, gets a gradient"
+    # the strided minibatches are views of the batch: every world in exactly one of them
+    seen = []
+
+    def spy(student, mb, fraction):
+        seen.append(mb["proprio"][:, 0, 0])  # a world's first proprio entry identifies it
+        return real_pass(student, mb, fraction)
+
+    real_pass = unified.student_pass
+    monkeypatch.setattr(unified, "student_pass", spy)
+    unified.update(p, data, iteration=1, cfg=tiny(teacher, tmp_path / "probe", *cheap))
+    monkeypatch.undo()
+    assert len(seen) == 2 and sorted(torch.cat(seen).tolist()) == sorted(data["proprio"][:, 0, 0].tolist())
     # a default student records nothing while acting
-    assert unified.build(tiny(teacher, tmp_path / "plain")).student.hold.feature_key is None
+    plain = unified.build(tiny(teacher, tmp_path / "plain"))
+    assert plain.student.hold.feature_key is None and not plain.optim.defaults.get("fused")
 
     out = unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=80", *cheap))
     assert out["iteration"] == 2
@@ -362,6 +375,7 @@ def test_the_cheap_update_trains_resumes_and_keeps_snapshots(teacher, tmp_path):
     ("dagger_minibatches=0", r"dagger_minibatches must be null \(ppo.num_minibatches\) or an integer in \[1, "
                              r"env.num_envs=4\], got 0"),
     ("dagger_minibatches=5", r"dagger_minibatches .* got 5"),
+    ("minibatch_split=shuffled", r"minibatch_split must be permute or strided, got 'shuffled'"),
 ])
 def test_bad_cheap_update_settings_are_refused(teacher, tmp_path, extra, match):
     with pytest.raises(ValueError, match=match):
