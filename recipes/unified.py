@@ -35,6 +35,7 @@ import torch
 from omegaconf import DictConfig
 
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
+from legoh_rl.modules.perception import PERCEPTION_BUILDERS
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
 from legoh_rl.training import runner
@@ -71,14 +72,12 @@ from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 from legoh_rl.training.student import LOCOMOTIONS, make_student, student_env
 
-PERCEPTIONS = ("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")
-
 register_configs()  # the env group's defaults, read from HikingEnvConfig
 
 
 def validate(cfg: DictConfig) -> None:
-    if cfg.student.perception not in PERCEPTIONS:
-        raise ValueError(f"unknown student.perception {cfg.student.perception!r}; valid: {list(PERCEPTIONS)}")
+    if cfg.student.perception not in PERCEPTION_BUILDERS:  # the registry is the one list of networks
+        raise ValueError(f"unknown student.perception {cfg.student.perception!r}; valid: {sorted(PERCEPTION_BUILDERS)}")
     check_locomotion(cfg)
     if cfg.teacher is None:
         raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
