@@ -224,3 +224,24 @@ def test_the_g1_lego_h_row_is_the_h1_lego_h_row_for_g1():
     assert {k: v for k, v in g1["env"].items() if k != "robot"} == {k: v for k, v in h1["env"].items() if k != "robot"}
     for key in ("student", "hlm", "collector", "dagger_iters", "dagger_replay", "ppo", "imitation"):
         assert g1[key] == h1[key], key
+
+
+def test_the_gpu_student_experiment_is_the_cpu_students_schedule_in_env_steps():
+    """student_h1_trails_gpu changes where student_h1 runs (Warp, CUDA, 2,048 worlds) and keeps its
+    schedule in env steps: the teacher's share decays, and PPO joins, at about the same step."""
+    cpu = OmegaConf.to_container(cfg_of("unified", ["experiment=student_h1"]), resolve=True)
+    gpu = OmegaConf.to_container(cfg_of("unified", ["experiment=student_h1_trails_gpu"]), resolve=True)
+    assert (gpu["device"], gpu["env"]["physics"], gpu["env"]["num_envs"]) == ("cuda", "warp", 2048)
+    assert {k: v for k, v in gpu["env"].items() if k not in ("physics", "num_envs", "num_threads")} == {
+        k: v for k, v in cpu["env"].items() if k not in ("physics", "num_envs", "num_threads")}
+    for key in ("student", "ppo", "imitation", "dagger_epochs", "dagger_minibatches", "encoder_grad_fraction",
+                "minibatch_split", "teacher"):
+        assert gpu[key] == cpu[key], key
+
+    def steps(cfg, iters):
+        return iters * cfg["env"]["num_envs"] * cfg["collector"]["steps_per_env"]
+
+    for key in ("dagger_iters", "dagger_decay_iters"):
+        assert 0.75 < steps(gpu, gpu[key]) / steps(cpu, cpu[key]) < 1.35, key
+    assert gpu["hlm"]["warmup_iters"] == gpu["dagger_iters"] and cpu["hlm"]["warmup_iters"] == cpu["dagger_iters"]
+    assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"]

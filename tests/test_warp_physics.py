@@ -538,3 +538,23 @@ def test_only_changed_rows_of_a_randomised_field_are_uploaded(pair):
     assert torch.allclose(view[2, :, 0], torch.tensor(0.7, dtype=view.dtype))
     worlds.step()  # nothing changed: nothing sent
     assert float(view[0, 0, 0]) == pytest.approx(0.123)
+
+
+def test_the_gpu_student_experiment_trains_on_warps_cpu_device_and_evaluates_on_mujoco(tmp_path):
+    """experiment=student_h1_trails_gpu end to end with a tiny budget on Warp's CPU device (the
+    networks on the CPU): the committed oracle distilled on Warp physics, the snapshot evaluated
+    on C MuJoCo."""
+    tiny = ["experiment=student_h1_trails_gpu", "device=cpu", "env.num_envs=4", "env.num_threads=1",
+            "env.categories=[randommix]", "env.variants=1", "env.category_weights=null", "collector.steps_per_env=10",
+            "collector.total_frames=80", "dagger_replay.capacity=1000", "dagger_replay.batch_size=16",
+            "dagger_minibatches=2", "checkpoint.every=1", "checkpoint.snapshot_every=2", "logger.backend=csv",
+            f"checkpoint.dir={tmp_path / 'st'}"]
+    out = unified.train(cfg_of("unified", tiny))
+    state = load_checkpoint(tmp_path / "st" / "last.pt")
+    assert out["iteration"] == 2 and state["config"]["env"]["physics"] == "warp"
+    assert state["config"]["experiment_name"] == "student_h1_trails_gpu" and state["config"]["encoder_grad_fraction"] == 0.25
+    snapshot = tmp_path / "st" / "snapshots" / "frames000000080.pt"
+    result = evaluate_recipe.evaluate(cfg_of("evaluate", [
+        f"checkpoint={snapshot}", "physics=mujoco", "categories=[randommix]", "levels=[0]", "robots_per_cell=2",
+        "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}", "video=false", "logger.backend=csv"]))
+    assert len(result["episodes"]) == 2
