@@ -70,14 +70,62 @@ PAPER_ROBOTS_PER_CELL = 20  # 20 x 25 cells = 500 ~ the paper's 512 robots
 PAPER_RUNS = 5
 
 
+def _as_number(value, kind: type):
+    """``value`` as ``kind`` (``int`` or ``float``), or None where ``int()``/``float()`` would refuse
+    it or silently change it: text that is not a number, ``true``/``false``, null, a list, and (for
+    ``int``) a number with a fractional part."""
+    if isinstance(value, bool) or value is None or isinstance(value, DictConfig | ListConfig | dict | list | tuple):
+        return None
+    try:
+        number = float(value) if kind is float or isinstance(value, float) else int(value)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    if kind is int and isinstance(number, float):
+        return int(number) if number.is_integer() else None
+    return number
+
+
+def number_of(key: str, value, kind: type = int):
+    """``value`` (of config key ``key``) as an ``int`` or a ``float`` (``kind``).
+
+    Raises:
+        ValueError: ``value`` is not one (:func:`_as_number`); the message names ``key`` and
+            ``value``: ``seed must be an integer, got 'abc'``.
+    """
+    number = _as_number(value, kind)
+    if number is None:
+        raise ValueError(f"{key} must be {'an integer' if kind is int else 'a number'}, got {value!r}")
+    return number
+
+
+def numbers_of(key: str, values, kind: type = int) -> list:
+    """``values`` (a list under config key ``key``) as a list of ``kind`` (:func:`number_of`).
+
+    Raises:
+        ValueError: not a list, or an entry that is not a ``kind``; the message names ``key``,
+            the list and the entry: ``trail_seeds must be a list of integers, got ['abc']: 'abc'
+            is not an integer``.
+    """
+    what = "an integer" if kind is int else "a number"
+    plural = "integers" if kind is int else "numbers"
+    if not isinstance(values, ListConfig | list | tuple):
+        raise ValueError(f"{key} must be a list of {plural}, got {values!r}")
+    items = list(values)
+    numbers = [_as_number(v, kind) for v in items]
+    for value, number in zip(items, numbers, strict=True):
+        if number is None:
+            raise ValueError(f"{key} must be a list of {plural}, got {items!r}: {value!r} is not {what}")
+    return numbers
+
+
 def protocol_of(cfg: DictConfig) -> EvalProtocol:
     if cfg.protocol not in ("cpu", "paper"):
         raise ValueError(f"unknown protocol {cfg.protocol!r}; valid: ['cpu', 'paper']")
     paper = cfg.protocol == "paper"
     return EvalProtocol(
-        categories=tuple(cfg.categories), levels=tuple(int(v) for v in cfg.levels),
-        robots_per_cell=PAPER_ROBOTS_PER_CELL if paper else int(cfg.robots_per_cell),
-        runs=PAPER_RUNS if paper else int(cfg.runs), seed=int(cfg.seed),
+        categories=tuple(cfg.categories), levels=tuple(numbers_of("levels", cfg.levels)),
+        robots_per_cell=PAPER_ROBOTS_PER_CELL if paper else number_of("robots_per_cell", cfg.robots_per_cell),
+        runs=PAPER_RUNS if paper else number_of("runs", cfg.runs), seed=number_of("seed", cfg.seed),
     )
 
 
@@ -85,8 +133,8 @@ def trail_seeds_of(cfg: DictConfig) -> list[int]:
     """The trail-grid seeds to evaluate on: ``cfg.trail_seeds`` or ``[cfg.seed]``."""
     seeds = cfg.get("trail_seeds")
     if seeds is None:
-        return [int(cfg.seed)]
-    seeds = [int(s) for s in seeds]
+        return [number_of("seed", cfg.seed)]
+    seeds = numbers_of("trail_seeds", seeds)
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"trail_seeds must be a non-empty list of distinct seeds, got {seeds}")
     return seeds
@@ -135,10 +183,11 @@ def evaluate(cfg: DictConfig) -> dict:
     if cfg.checkpoint is None:
         raise ValueError("checkpoint is required: a .pt file from a recipe, a .onnx export, or 'zero' for the "
                          "PD-hold baseline")
-    if cfg.video and not float(cfg.video_seconds) > 0.0:  # checked before the evaluation, not after it
+    if cfg.video and not number_of("video_seconds", cfg.video_seconds, float) > 0.0:  # before the evaluation
         raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
     protocol = protocol_of(cfg)
     seeds = trail_seeds_of(cfg)
+    variants = number_of("variants", cfg.variants)
     domain_rand = domain_rand_of(cfg)
     device = resolve_device(cfg.get("device"))
     cfg = OmegaConf.merge(cfg, {"device": str(device)})  # the logged config records the device it ran on
@@ -151,7 +200,7 @@ def evaluate(cfg: DictConfig) -> dict:
     for i, seed in enumerate(seeds):  # trail set i: runs i * runs .. (i + 1) * runs - 1
         print(f"trail set {i + 1}/{len(seeds)} (seed {seed}): {protocol.num_worlds} robots x {protocol.runs} run(s)",
               flush=True)
-        env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=int(cfg.variants),
+        env, policy, kind = load_policy(cfg.checkpoint, protocol, robot=cfg.robot, variants=variants,
                                         seed=seed, num_threads=cfg.num_threads, device=device,
                                         physics=cfg.get("physics", "mujoco"), domain_rand=domain_rand)
         part = run_protocol(env, policy, replace(protocol, seed=seed), progress=True)

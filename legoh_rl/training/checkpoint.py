@@ -6,14 +6,31 @@ the iteration and frame counters, the logger's run id, and a ``meta`` block (rob
 layout, action size, kind of policy) that loaders check before using it.
 
 Writes go to a temporary file in the same folder, are flushed to disk, then renamed over the
-target: a run killed while writing leaves the previous checkpoint intact.
+target: a run killed while writing leaves the previous checkpoint intact. A write that fails (a
+full disk, no permission) leaves it intact too, and says so: :class:`CheckpointWriteError` names
+the file, the folder and what to do.
+
+Checkpoints are safe to share: they load with ``torch.load(weights_only=True)``, which builds
+tensors, plain containers (dict, list, tuple), numbers and strings and nothing else, so a file
+whose pickle would call a function (``os.system``, ...) is refused before anything in it runs
+(:func:`load_checkpoint`). What :func:`save_checkpoint` writes keeps to that: numpy arrays become
+tensors, numpy scalars Python numbers, and a payload holding any other object is refused at
+save time rather than written as a file no run could load. Run states written before this rule
+hold two kinds of numpy array (curriculum levels, the numpy RNG key): :data:`LEGACY_SAFE_GLOBALS`
+lets exactly those through. Weights are checked too: a NaN or inf in any of a checkpoint's
+network weights (:data:`WEIGHT_KEYS`) refuses it, naming the tensor.
 """
 
 from __future__ import annotations
 
+import copy
+import errno
 import hashlib
 import os
+import pickle
 import random
+import re
+import shutil
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -23,8 +40,22 @@ import torch
 
 __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
-    "CheckpointError", "require_training_state", "load_weights", "file_digest",
+    "CheckpointError", "CheckpointWriteError", "require_training_state", "load_weights", "file_digest",
+    "LEGACY_SAFE_GLOBALS", "WEIGHT_KEYS", "check_finite_weights",
 ]
+
+#: The only globals :func:`load_checkpoint` allows beyond torch's weights-only set (tensors, plain
+#: containers, numbers, strings): numpy's array rebuild, for run states written before
+#: :func:`save_checkpoint` stored numpy arrays as tensors. Those hold two kinds of numpy array,
+#: int64 (curriculum levels) and uint32 (the numpy MT19937 key of :func:`rng_state`); arrays of
+#: any other dtype (object arrays above all) stay refused.
+LEGACY_SAFE_GLOBALS = (np._core.multiarray._reconstruct, np.ndarray, np.dtype,
+                       np.dtypes.Int64DType, np.dtypes.UInt32DType)
+
+#: The payload entries that hold network weights (``state_dict``\ s): oracle ``networks``, the
+#: oracle recipe's ``loss`` (its actor and critic) and ``actor``; a student's ``perception``,
+#: ``actor``, ``critic`` and ``vae``. :func:`load_checkpoint` refuses a NaN or inf in any of them.
+WEIGHT_KEYS = ("networks", "actor", "perception", "critic", "vae", "loss")
 
 
 def file_digest(path: str | os.PathLike) -> str:
@@ -37,10 +68,19 @@ class CheckpointError(ValueError):
     """A file that is not a usable checkpoint for what was asked (the message names the file)."""
 
 
+class CheckpointWriteError(OSError, CheckpointError):
+    """A checkpoint could not be written (a full disk, no permission, ...): the message names the
+    file, its folder, what to do, and whether the previous checkpoint there is intact. An
+    :class:`OSError` (``errno`` kept: ``ENOSPC`` for a full disk) and a :class:`CheckpointError`."""
+
+
 def rng_state() -> dict:
     """Torch, numpy-global and python RNG states, and the CUDA generators' (``"cuda"``, one per GPU)
     when CUDA is in use: a run on a GPU samples its actions there."""
-    state = {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
+    kind, key, pos, has_gauss, gauss = np.random.get_state()
+    numpy_state = {"bit_generator": str(kind), "key": key.tolist(), "pos": int(pos), "has_gauss": int(has_gauss),
+                   "gauss": float(gauss)}  # plain numbers, so that a checkpoint loads with weights_only=True
+    state = {"torch": torch.get_rng_state(), "numpy": numpy_state, "python": random.getstate()}
     if torch.cuda.is_available() and torch.cuda.is_initialized():
         state["cuda"] = torch.cuda.get_rng_state_all()
     return state
@@ -48,32 +88,126 @@ def rng_state() -> dict:
 
 def set_rng_state(state: dict) -> None:
     """Restore :func:`rng_state`; the CUDA states only where this machine has as many GPUs (a GPU
-    run resumed on a CPU goes on with the CPU generators alone)."""
+    run resumed on a CPU goes on with the CPU generators alone). The numpy state is either the
+    plain dict :func:`rng_state` writes or, in older checkpoints, ``np.random.get_state()``'s tuple."""
     torch.set_rng_state(state["torch"])
-    np.random.set_state(state["numpy"])
+    numpy_state = state["numpy"]
+    if isinstance(numpy_state, dict):
+        numpy_state = (numpy_state["bit_generator"], np.asarray(numpy_state["key"], dtype=np.uint32),
+                       numpy_state["pos"], numpy_state["has_gauss"], numpy_state["gauss"])
+    np.random.set_state(numpy_state)
     random.setstate(state["python"])
     cuda = state.get("cuda")
     if cuda is not None and torch.cuda.is_available() and torch.cuda.device_count() == len(cuda):
         torch.cuda.set_rng_state_all(cuda)
 
 
+def _plain(obj: Any) -> Any:
+    """``obj`` with numpy arrays as tensors (other dtypes: lists) and numpy scalars as Python
+    numbers, at any depth of dicts, lists and tuples: what ``torch.load(weights_only=True)`` builds
+    without allowing numpy's globals. Containers with nothing to convert are returned as they are
+    (a ``state_dict``'s ``OrderedDict`` keeps its ``_metadata``)."""
+    if isinstance(obj, np.ndarray):
+        try:  # bool, integers, floats, complex: a tensor of the same dtype
+            return torch.from_numpy(np.array(obj, copy=True, order="C"))
+        except TypeError:  # strings, objects, dates, long doubles: Python values
+            return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, dict):
+        items = {k: _plain(v) for k, v in obj.items()}
+        if all(items[k] is v for k, v in obj.items()):
+            return obj
+        out = copy.copy(obj)
+        out.update(items)
+        return out
+    if type(obj) in (list, tuple):
+        items = [_plain(v) for v in obj]
+        if all(a is b for a, b in zip(items, obj, strict=True)):
+            return obj
+        return type(obj)(items)
+    return obj
+
+
+def _write_error(path: Path, err: BaseException, existed: bool) -> CheckpointWriteError:
+    """The :class:`CheckpointWriteError` for a failed write of ``path``: what failed, the free
+    space of its folder, what to do, and whether the previous checkpoint is intact."""
+    folder = path.parent
+    code = getattr(err, "errno", None)
+    if code is None and isinstance(err, RuntimeError):  # torch's zip writer: "enforce fail ... file write failed"
+        code = errno.EIO
+    try:
+        free = f"{shutil.disk_usage(folder).free / 1e6:.0f} MB free"
+    except OSError:
+        free = "free space unknown"
+    full = code in (errno.ENOSPC, errno.EDQUOT)
+    todo = (f"free space in {folder} ({free}; a checkpoint here takes about the size of the last one) or point "
+            "checkpoint.dir at a disk with room" if full else
+            f"check that {folder} is writable and its disk healthy ({free}), or point checkpoint.dir elsewhere")
+    before = (f"the previous checkpoint at {path} is intact: resume from it (checkpoint.resume=auto) once fixed"
+              if existed else f"no earlier checkpoint was at {path}")
+    reason = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else err!r}"
+    return CheckpointWriteError(code if code is not None else errno.EIO,
+                                f"could not write the checkpoint {path} ({reason}): {todo}; {before}")
+
+
 def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
-    """Write ``payload`` to ``path`` atomically (temp file + fsync + rename); return the path."""
+    """Write ``payload`` to ``path`` atomically (temp file + fsync + rename); return the path.
+
+    Numpy arrays and scalars anywhere in ``payload`` are written as tensors and Python numbers
+    (:func:`_plain`), so that the file loads with ``weights_only=True`` (:func:`load_checkpoint`).
+
+    Raises:
+        CheckpointWriteError: the file could not be written (full disk: ``errno.ENOSPC``; torch's
+            "PytorchStreamWriter ... file write failed" too): names the file, the folder's free
+            space and what to do; the previous checkpoint at ``path``, if any, is left intact.
+        CheckpointError: ``payload`` holds an object that :func:`load_checkpoint` would refuse
+            (anything but tensors, plain containers, numbers and strings): a bug of the caller,
+            refused before the file replaces the previous one.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    existed = path.is_file()
+    payload = _plain(payload)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    except OSError as err:
+        raise _write_error(path, err, existed) from err
     try:
         with os.fdopen(fd, "wb") as f:
             torch.save(payload, f)
             f.flush()
             os.fsync(f.fileno())
+        unsafe = torch.serialization.get_unsafe_globals_in_checkpoint(tmp)
+        if unsafe:
+            raise CheckpointError(f"save_checkpoint({path}): the payload holds {sorted(unsafe)}, which a checkpoint "
+                                  "may not hold (it loads with weights_only=True): store tensors, plain containers, "
+                                  "numbers and strings instead (e.g. a dataclass as dataclasses.asdict, a path as str)")
         os.chmod(tmp, 0o644)  # mkstemp makes 0600; a checkpoint is an ordinary shareable file
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    except BaseException as err:
+        try:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(err, OSError) or (isinstance(err, RuntimeError) and _is_write_failure(err)):
+            raise _write_error(path, err, existed) from err
         raise
     return path
+
+
+def _is_write_failure(err: RuntimeError) -> bool:
+    """Whether a ``RuntimeError`` from ``torch.save`` is its zip writer failing to write (a full
+    disk shows as ``enforce fail at inline_container.cc ... PytorchStreamWriter failed writing
+    file ...: file write failed``), not a bug in the payload."""
+    text = str(err)
+    return "PytorchStreamWriter" in text or "file write failed" in text or "unexpected pos" in text
+
+
+#: what torch's weights-only unpickler says of a global it refused to call or a type it refused to
+#: build (``Unsupported global: GLOBAL os.system ...``, ``... but got <class 'numpy.dtypes.ObjectDType'>``)
+_UNSAFE = re.compile(r"GLOBAL ([\w.]+)|but got <class '([\w.]+)'>")
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
@@ -86,20 +220,58 @@ def load_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 
     Raises:
         FileNotFoundError: no file at ``path`` (the message names it).
-        CheckpointError: the file is empty, truncated or not a checkpoint (names it).
+        CheckpointError: the file is empty, truncated or not a checkpoint; its pickle would build
+            or call anything but tensors, plain containers and numbers (``weights_only=True``: a
+            shared file cannot run code here; the message names the function it would have
+            called); or a network weight (:data:`WEIGHT_KEYS`) holds a NaN or inf (names the
+            tensor). Every message names the file.
     """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
     try:
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        with torch.serialization.safe_globals(list(LEGACY_SAFE_GLOBALS)):
+            state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # EOFError, UnpicklingError, zip errors, ...: all mean the same to a user
         size = path.stat().st_size
-        raise CheckpointError(f"{path} ({size} bytes) is not a readable checkpoint ({type(err).__name__}: {err}); "
-                              "it may be empty or cut short: point to another file, or delete it") from None
+        text = str(err)
+        unsafe = _UNSAFE.search(text) if isinstance(err, pickle.UnpicklingError) else None
+        if unsafe:
+            name = unsafe.group(1) or unsafe.group(2)
+            raise CheckpointError(
+                f"{path} refused: loading it would build or call {name}, which no legoh-rl checkpoint "
+                "holds (checkpoints load with weights_only=True: tensors, plain containers and numbers only, so "
+                "that a shared file cannot run code). Nothing in it was run. Do not use it: ask whoever shared it "
+                "for a checkpoint written by this project's recipes (or recipes/export_policy.py)") from None
+        reason = " ".join(line.strip() for line in text.splitlines() if line.strip() and not line.startswith(
+            ("Weights only load failed", "Please file an issue", "Check the documentation"))) or repr(err)
+        raise CheckpointError(f"{path} ({size} bytes) is not a readable checkpoint ({type(err).__name__}: "
+                              f"{reason}); it may be empty or cut short: point to another file, or delete it") from None
     if not isinstance(state, dict) or "meta" not in state:
         raise CheckpointError(f"{path} is not a legoh-rl checkpoint (no 'meta' block)")
+    check_finite_weights(state, path)
     return state
+
+
+def check_finite_weights(state: dict, path: str | os.PathLike) -> None:
+    """Refuse a checkpoint with a NaN or inf in any network weight (:data:`WEIGHT_KEYS`): a policy
+    with one outputs non-finite actions, which an evaluation would report as a bad policy.
+
+    Raises:
+        CheckpointError: names the file, the tensor (``actor.mlp.0.weight``) and how many of its
+            values are not finite.
+    """
+    for key in WEIGHT_KEYS:
+        block = state.get(key)
+        if not isinstance(block, dict):
+            continue
+        for name, value in block.items():
+            if torch.is_tensor(value) and value.is_floating_point() and not bool(torch.isfinite(value).all()):
+                bad = int((~torch.isfinite(value)).sum())
+                raise CheckpointError(
+                    f"{path}: weight {key}.{name} holds {bad} non-finite value(s) (NaN or inf) of {value.numel()}: "
+                    "the run that wrote it diverged, and a policy with such weights acts with NaN. Use an earlier "
+                    "checkpoint of that run (or retrain from one)")
 
 
 def require_training_state(state: dict, path: str | os.PathLike, keys: tuple[str, ...]) -> None:

@@ -147,7 +147,16 @@ def import_ray():
 
 def _on_cpu(obj):
     """A copy of ``obj`` (anything picklable: modules, factories holding modules) with every tensor
-    on the CPU: what a worker without a GPU can unpickle."""
+    on the CPU: what a worker without a GPU can unpickle.
+
+    The one ``torch.load`` of the project without ``weights_only=True`` (checkpoints keep to it:
+    :func:`~legoh_rl.training.checkpoint.load_checkpoint`), and it need not: the bytes it reads are
+    the ones ``torch.save`` wrote two lines above, in memory, from objects of this process; they
+    never touch a file or the network, so nothing from anyone else can reach this unpickler. And it
+    cannot: a module or an env factory is not a tensor or a plain container. The weights sent to
+    the workers after each update go as tensors (torchrl's ``RayWeightSyncScheme``, no pickle);
+    what Ray itself pickles between the processes of a cluster you started is within Ray's trust
+    model (every node of a cluster runs code for every other), not a shared file."""
     buffer = io.BytesIO()
     torch.save(obj, buffer)
     buffer.seek(0)
