@@ -31,11 +31,11 @@ from legoh_rl.training.checkpoint import load_checkpoint
 from legoh_rl.training.onnx_export import (
     export_onnx,
     feature_shapes,
+    make_session,
     oracle_graph,
     sample_inputs,
     student_graphs,
 )
-from legoh_rl.training.onnx_policy import make_session
 
 CONTROL_BUDGET_MS = 20.0  # 50 Hz
 PERCEPTION_BUDGET_MS = 100.0  # 10 Hz

@@ -5,6 +5,8 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping, Sequence
 
+import torch
+
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DomainRandConfig
@@ -15,8 +17,8 @@ from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
 from legoh_rl.training.config_store import RECIPE_ENV_KEYS
 
-__all__ = ["env_config", "make_env", "oracle_config", "make_oracle", "policy_meta", "gait_kwargs", "require_positive",
-           "require_count", "require_layers"]
+__all__ = ["env_config", "make_env", "eval_env", "oracle_config", "make_oracle", "oracle_networks", "policy_meta",
+           "gait_kwargs", "require_positive", "require_count", "require_layers"]
 
 
 def require_positive(section: str, cfg: Mapping, *names: str) -> None:
@@ -108,6 +110,28 @@ def make_env(cfg: Mapping, mode: str, trails=None, **overrides) -> HikingEnv:
     """Build the batched env of a recipe's ``env`` section (``overrides``: config fields the recipe
     sets, e.g. ``device``)."""
     return HikingEnv(env_config(cfg, mode, **overrides), trails=trails)
+
+
+def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
+             trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool | tuple[str, ...] = False,
+             **gait) -> HikingEnv:
+    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds), its tensors on
+    ``device``, its worlds stepped by ``physics`` (``mujoco`` | ``warp``), with the training's
+    randomisation when ``domain_rand`` (``HikingEnvConfig.eval_domain_rand``); ``gait``:
+    ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``) of a policy
+    trained with a gait clock."""
+    cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
+                          categories=tuple(protocol.categories), levels=tuple(protocol.levels),
+                          variants=variants, seed=seed, num_threads=num_threads, device=str(device), physics=physics,
+                          eval_domain_rand=domain_rand, **gait)
+    return HikingEnv(cfg, trails=trails)
+
+
+def oracle_networks(state: dict) -> OracleNetworks:
+    """The trained networks of an oracle checkpoint (its ``oracle_config`` and ``networks``)."""
+    networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
+    networks.load_state_dict(state["networks"])
+    return networks
 
 
 def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None,

@@ -14,8 +14,8 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor, make_oracle_critic
+from legoh_rl.training.builders import oracle_networks
 from legoh_rl.training.checkpoint import load_checkpoint
-from legoh_rl.training.policies import oracle_networks
 
 __all__ = ["Teacher", "DAggerMixture", "dagger_beta", "student_pass", "STUDENT_ACTION_KEY"]
 

@@ -57,12 +57,13 @@ from torchrl.modules import GRUModule
 
 from legoh_rl.modules.configs import PerceptionConfig
 from legoh_rl.modules.oracle import make_oracle_actor
+from legoh_rl.training.builders import oracle_networks
 from legoh_rl.training.student import hold_keys, student_networks
 from legoh_rl.transforms import PerceptionHold
 
 __all__ = [
     "DEPLOY_HINT", "OPSET", "DeployError", "TensorDictGraph", "require_deploy", "onnx_paths", "oracle_graph",
-    "student_graphs", "student_modules", "export_onnx", "key_name", "feature_shapes", "sample_inputs",
+    "student_graphs", "student_modules", "export_onnx", "key_name", "feature_shapes", "sample_inputs", "make_session",
 ]
 
 OPSET = 17
@@ -191,8 +192,6 @@ def _key(k):
 def oracle_graph(state: Mapping) -> TensorDictGraph:
     """The oracle of a checkpoint as one graph: ``(proprio, scandots, privileged, expert_goals)
     -> loc`` (shapes in the module docstring)."""
-    from legoh_rl.training.policies import oracle_networks
-
     return TensorDictGraph(make_oracle_actor(oracle_networks(state)), ["loc"]).eval()
 
 
@@ -305,10 +304,19 @@ def _write_metadata(onnx, graph: TensorDictGraph, tmp: Path, in_names, out_names
     onnx.save(model, str(tmp))
 
 
+def make_session(path: str | os.PathLike, threads: int = 1):
+    """An onnxruntime CPU ``InferenceSession`` for ``path`` with ``threads`` intra-op threads
+    (1 = the caller's thread only, as the evaluation runs torch)."""
+    ort = require_deploy("onnxruntime")
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = int(threads)
+    opts.inter_op_num_threads = 1
+    opts.log_severity_level = 3  # errors only
+    return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+
+
 def _max_error(graph: TensorDictGraph, path: Path, sample: tuple[torch.Tensor, ...]) -> float:
     """Largest |onnxruntime - torch| over the graph's outputs on ``sample``."""
-    from legoh_rl.training.onnx_policy import make_session
-
     sess = make_session(path)
     names = [i.name for i in sess.get_inputs()]
     got = sess.run(None, {n: x.numpy() for n, x in zip(names, sample, strict=True)})

@@ -33,20 +33,18 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Unbounded
 from torchrl.envs import TensorDictPrimer
 
-from legoh_rl.training.onnx_export import PREFIX, DeployError, onnx_paths, require_deploy
+from legoh_rl.training.builders import eval_env, gait_kwargs, policy_meta
+from legoh_rl.training.checkpoint import check_meta
+from legoh_rl.training.onnx_export import (
+    PREFIX,
+    DeployError,
+    make_session,
+    onnx_paths,
+)
+from legoh_rl.training.student import StudentPolicy, hold_keys, student_env
+from legoh_rl.transforms import PerceptionHold
 
-__all__ = ["make_session", "read_metadata", "resolve_onnx", "OnnxModule", "load_onnx_policy"]
-
-
-def make_session(path: str | os.PathLike, threads: int = 1):
-    """An onnxruntime CPU ``InferenceSession`` for ``path`` with ``threads`` intra-op threads
-    (1 = the caller's thread only, as the evaluation runs torch)."""
-    ort = require_deploy("onnxruntime")
-    opts = ort.SessionOptions()
-    opts.intra_op_num_threads = int(threads)
-    opts.inter_op_num_threads = 1
-    opts.log_severity_level = 3  # errors only
-    return ort.InferenceSession(str(path), sess_options=opts, providers=["CPUExecutionProvider"])
+__all__ = ["read_metadata", "resolve_onnx", "OnnxModule", "load_onnx_policy"]
 
 
 def _key(k):
@@ -199,12 +197,6 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
         ImportError: onnxruntime missing (says what to install). FileNotFoundError: no such
         graph(s). DeployError / ValueError: not an export, or an export that does not fit the env.
     """
-    from legoh_rl.training.builders import gait_kwargs, policy_meta
-    from legoh_rl.training.checkpoint import check_meta
-    from legoh_rl.training.policies import eval_env
-    from legoh_rl.training.student import StudentPolicy, hold_keys, student_env
-    from legoh_rl.transforms import PerceptionHold
-
     files = resolve_onnx(checkpoint)
     if "oracle" in files:
         module = OnnxModule(files["oracle"], threads)

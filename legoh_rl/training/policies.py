@@ -11,14 +11,14 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from legoh_rl.envs import HikingEnv, HikingEnvConfig
-from legoh_rl.modules.configs import OracleConfig
-from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor
-from legoh_rl.training.builders import gait_kwargs, policy_meta
+from legoh_rl.modules.oracle import make_oracle_actor
+from legoh_rl.training.builders import eval_env, gait_kwargs, oracle_networks, policy_meta
 from legoh_rl.training.checkpoint import check_meta, load_checkpoint
+from legoh_rl.training.evaluation import EvalProtocol
+from legoh_rl.training.onnx_policy import load_onnx_policy
 from legoh_rl.training.student import make_student, student_env
 
-__all__ = ["ZeroPolicy", "load_policy", "load_cell_policy", "load_student", "oracle_networks", "eval_env"]
+__all__ = ["ZeroPolicy", "load_policy", "load_cell_policy", "load_student"]
 
 
 class ZeroPolicy(TensorDictModuleBase):
@@ -33,28 +33,6 @@ class ZeroPolicy(TensorDictModuleBase):
     def forward(self, td: TensorDictBase) -> TensorDictBase:
         td.set("action", torch.zeros(*td.batch_size, self.num_actions, device=td.device))
         return td
-
-
-def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
-             trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool | tuple[str, ...] = False,
-             **gait) -> HikingEnv:
-    """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds), its tensors on
-    ``device``, its worlds stepped by ``physics`` (``mujoco`` | ``warp``), with the training's
-    randomisation when ``domain_rand`` (``HikingEnvConfig.eval_domain_rand``); ``gait``:
-    ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``) of a policy
-    trained with a gait clock."""
-    cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
-                          categories=tuple(protocol.categories), levels=tuple(protocol.levels),
-                          variants=variants, seed=seed, num_threads=num_threads, device=str(device), physics=physics,
-                          eval_domain_rand=domain_rand, **gait)
-    return HikingEnv(cfg, trails=trails)
-
-
-def oracle_networks(state: dict) -> OracleNetworks:
-    """The trained networks of an oracle checkpoint (its ``oracle_config`` and ``networks``)."""
-    networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
-    networks.load_state_dict(state["networks"])
-    return networks
 
 
 def load_student(state: dict, protocol, variants: int, seed: int, num_threads=None, trails=None, path: str = "checkpoint",
@@ -95,8 +73,6 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
                        domain_rand=domain_rand)
         return env, ZeroPolicy(env.A), "zero-action"
     if str(checkpoint).endswith(".onnx"):  # graphs from export_policy.py --format onnx
-        from legoh_rl.training.onnx_policy import load_onnx_policy
-
         return load_onnx_policy(checkpoint, protocol, variants, seed, num_threads, trails=trails, physics=physics,
                                 domain_rand=domain_rand)
     state = load_checkpoint(checkpoint)
@@ -117,8 +93,6 @@ def load_cell_policy(checkpoint: str, category: str, level: int, robots: int, se
     """``(env, policy, kind, base)`` for ``robots`` worlds on one (category, level) cell, physics on
     one thread: what the probe recipes (``gait_stats.py``, ``route_following.py``) roll out.
     ``base`` is the untransformed :class:`HikingEnv` (``env`` itself for an oracle)."""
-    from legoh_rl.training.evaluation import EvalProtocol
-
     protocol = EvalProtocol(categories=(category,), levels=(level,), robots_per_cell=robots, seed=seed)
     env, policy, kind = load_policy(checkpoint, protocol, variants=variants, seed=seed, num_threads=1)
     return env, policy, kind, getattr(env, "base_env", env)
