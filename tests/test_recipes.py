@@ -16,6 +16,7 @@ from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
 from legoh_rl.training.evaluation import aggregate, markdown_table
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
+ROOT = RECIPES.parent
 sys.path.insert(0, str(RECIPES))
 
 import evaluate as evaluate_recipe  # noqa: E402
@@ -675,3 +676,32 @@ def test_eval_protocol_refuses_bad_cells_naming_them(kwargs, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         EvalProtocol(**cells)
     assert EvalProtocol(categories=("hill", "gap"), levels=(0, 4)).num_worlds == 16  # hill: out of domain, valid
+
+
+def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, capsys):
+    """recipes/provenance.py: the committed student's experiment, its command, its teacher's own
+    lineage, and the resolved config it trained with."""
+    import provenance
+
+    assert provenance.main([str(ROOT / "checkpoints" / "student_h1.pt"), "--config"]) == 0
+    out = capsys.readouterr().out
+    assert "experiment student_h1_trails: student_h1_trails.yaml" in out
+    assert "trained by: python recipes/unified.py experiment=student_h1_trails checkpoint.resume=auto" in out
+    assert "the experiment today gives the recorded settings" in out
+    assert "teacher:" in out and "checkpoints/oracle_h1.pt" in out
+    assert "experiment oracle_h1_footholds: oracle_h1_footholds.yaml <- oracle_h1_trails.yaml" in out
+    assert "resolved config:" in out and "dagger_iters: 1455" in out
+    assert provenance.experiment_chain("student_g1") == ["student_g1", "student_h1", "student_h1_trails"]
+    changed, added = provenance.differences({"a": 1, "b": {"c": 2}, "gone": 0}, {"a": 1, "b": {"c": 3, "d": 4}})
+    assert changed == ["b.c: recorded 2, today 3", "gone: recorded 0, today '<no longer a setting>'"]
+    assert added == ["b.d"]
+    # a checkpoint of the plain recipe config says so
+    state = load_checkpoint(ROOT / "checkpoints" / "oracle_h1.pt")
+    state["meta"] = {k: v for k, v in state["meta"].items() if k != "experiment"}
+    state["config"] = {}
+    save_checkpoint(tmp_path / "plain.pt", state)
+    provenance.main([str(tmp_path / "plain.pt")])
+    assert "no named experiment in its meta block" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        provenance.main([str(tmp_path / "missing.pt")])
+    assert "no checkpoint at" in capsys.readouterr().err
