@@ -61,7 +61,8 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
     The env's device is not a key of the section: the recipe's ``device`` sets it (``overrides``).
 
     Raises:
-        ValueError: the section sets ``device`` (``+env.device=cuda`` was once silently ignored).
+        ValueError: the section sets ``device`` (the recipe's ``device`` is the one switch: a value here
+            would otherwise go unread).
     """
     if cfg.get("device") is not None:
         raise ValueError(f"env.device={cfg.get('device')!r} is not a setting: the recipe's device=... is the one "
