@@ -1,7 +1,9 @@
 """The humanoid hiking benchmark: robots, batched physics, trails, sensors, rewards, the env.
 
 Importing this package registers the Gymnasium ids ``LegoH/Hike-H1-v0``, ``LegoH/Hike-G1-v0``
-(oracle observations) and ``LegoH/HikeDepth-H1-v0``, ``LegoH/HikeDepth-G1-v0`` (with depth).
+(oracle observations) and ``LegoH/HikeDepth-H1-v0``, ``LegoH/HikeDepth-G1-v0`` (with depth), each
+with a vector entry point: ``gymnasium.make_vec(id, num_envs=N, vectorization_mode="vector_entry_point")``
+is one batched env of N worlds (:class:`~legoh_rl.envs.gym_env.HikingVectorEnv`).
 """
 
 import gymnasium as _gym
@@ -18,6 +20,7 @@ for _robot in ("H1", "G1"):
             _gym.register(
                 id=_id,
                 entry_point="legoh_rl.envs.gym_env:HikingGymEnv",
+                vector_entry_point="legoh_rl.envs.gym_env:HikingVectorEnv",
                 kwargs={"robot": _robot.lower(), "mode": _mode},
                 max_episode_steps=None,
             )
