@@ -14,7 +14,8 @@ main ones, ``--panels student`` the imitation losses and episode metrics of a un
 trail completion; grouped success smoothed by episode counts) and the gait feedforward gain.
 ``--compare`` overlays the run directories as separate runs instead, one colour each.
 ``--x hours`` plots against training time (the iterations' collection and update seconds summed,
-start-ups and evaluations left out) instead of env steps: how a GPU run's curve compares with a
+start-ups and evaluations left out; or, with ``--rate``, env steps over each run's env steps/s as
+measured on an idle machine in one benchmark run, for runs that shared their machine) instead of env steps: how a GPU run's curve compares with a
 CPU run's in time to the same success rate.
 
     python recipes/plot_curves.py runs/oracle_h1_trails runs/oracle_h1_trails_gpu --compare --x hours \
@@ -207,7 +208,15 @@ def main() -> None:
                         help="the run directories are separate runs, overlaid (not stages of one policy)")
     parser.add_argument("--x", choices=("frames", "hours"), default="frames",
                         help="x axis: env steps, or training hours (collection + update time)")
+    parser.add_argument("--rate", type=float, nargs="+", default=None, metavar="STEPS_PER_S",
+                        help="with --x hours: one env steps/s per run directory, measured for each on an idle "
+                             "machine in one benchmark run; hours are then env steps / rate (the runs' own "
+                             "iteration times count whatever else shared the machine)")
     args = parser.parse_args()
+    if args.rate is not None and (args.x != "hours" or len(args.rate) != len(args.run_dirs)
+                                  or any(r <= 0 for r in args.rate)):
+        parser.error(f"--rate needs --x hours and one positive rate per run directory ({len(args.run_dirs)}), "
+                     f"got {args.rate}")
     if args.smooth < 1:
         parser.error(f"--smooth must be >= 1, got {args.smooth}")
     if args.compare:
@@ -217,7 +226,14 @@ def main() -> None:
     x = "step"
     if args.x == "hours":  # stage starts move to the hours of the rows they start at
         x = "train/hours"
-        if args.compare:
+        if args.rate is not None:  # hours at a measured rate
+            rates = dict(zip([d.name for d in args.run_dirs], args.rate, strict=True)) if args.compare else None
+            if args.compare:
+                rows = {name: [{**r, x: r["step"] / rates[name] / 3600} for r in run] for name, run in rows.items()}
+            else:
+                rows = [{**r, x: r["step"] / args.rate[0] / 3600} for r in rows]
+                starts = [s / args.rate[0] / 3600 for s in starts]
+        elif args.compare:
             rows = {name: with_hours(run) for name, run in rows.items()}
         else:
             rows = with_hours(rows)

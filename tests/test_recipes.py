@@ -705,3 +705,24 @@ def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, caps
     with pytest.raises(SystemExit):
         provenance.main([str(tmp_path / "missing.pt")])
     assert "no checkpoint at" in capsys.readouterr().err
+
+
+def test_plot_curves_hours_at_measured_rates(tmp_path, monkeypatch):
+    """--x hours --rate: each run's x is its env steps over its own measured steps/s, in hours."""
+    import plot_curves
+
+    for name in ("fast", "slow"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.jsonl").write_text(
+            "\n".join(json.dumps({"step": s, "episode/success": 1.0, "train/collect_s": 1.0, "train/update_s": 1.0})
+                      for s in (7200, 14400)) + "\n")
+    figs = []
+    monkeypatch.setattr(plot_curves.plt, "close", figs.append)
+    monkeypatch.setattr(sys, "argv", ["plot_curves.py", str(tmp_path / "fast"), str(tmp_path / "slow"), "--compare",
+                                      "--x", "hours", "--rate", "2", "1", "-o", str(tmp_path / "c.png")])
+    plot_curves.main()
+    lines = {ln.get_label(): list(ln.get_xdata()) for ln in figs[0].axes[1].lines}  # the success panel
+    assert lines["fast"] == [1.0, 2.0] and lines["slow"] == [2.0, 4.0]
+    monkeypatch.setattr(sys, "argv", ["plot_curves.py", str(tmp_path / "fast"), "--rate", "2"])
+    with pytest.raises(SystemExit):
+        plot_curves.main()
