@@ -389,17 +389,16 @@ class PerceptionHold(TensorDictModuleBase):
     # ------------------------------------------------------------------ helpers
     def _run(self, td: TensorDictBase) -> TensorDictBase:
         sub = td.select(*self.perception.in_keys, strict=False)
-        out = self.perception(sub)
+        return self._checked(self.perception(sub), sub)
+
+    def _checked(self, out: TensorDictBase | None, sub: TensorDictBase) -> TensorDictBase:
+        """The perception's output (``sub`` when it wrote in place), checked to hold every held
+        key at its shape and every recurrent key's next value."""
         out = sub if out is None else out
-        for k in self.hold_keys:
+        for k in [*self.hold_keys, *(_next(r) for r in self.recurrent_keys)]:
             if out.get(k, None) is None:
                 raise KeyError(f"PerceptionHold: the perception module did not write {k!r}")
         self._check_output(out, sub.batch_dims)
-        for r in self.recurrent_keys:
-            if out.get(_next(r), None) is None:
-                raise KeyError(
-                    f"PerceptionHold: the perception module did not write {_next(r)!r}"
-                )
         return out
 
     def _run_cached(self, td: TensorDictBase, fraction: float) -> TensorDictBase:
@@ -413,13 +412,7 @@ class PerceptionHold(TensorDictModuleBase):
             feats[pick] = self._encoder(sub).get(self.feature_key).to(feats.dtype)
         rest = td.select(*self._rest.in_keys, strict=False)
         rest.set(self.feature_key, feats)
-        out = self._rest(rest)
-        out = rest if out is None else out
-        for k in self.hold_keys:
-            if out.get(k, None) is None:
-                raise KeyError(f"PerceptionHold: the perception module did not write {k!r}")
-        self._check_output(out, rest.batch_dims)
-        return out
+        return self._checked(self._rest(rest), rest)
 
     def _has_state(self, td: TensorDictBase) -> bool:
         keys = [*self.held_keys.values(), self.valid_key]
