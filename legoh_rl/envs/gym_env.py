@@ -49,6 +49,18 @@ __all__ = ["HikingGymEnv", "HikingVectorEnv", "action_space_of", "numpy_obs", "o
 _OBS_KEYS = ("proprio", "goal_gps", "waypoint_gps", "scandots", "privileged", "expert_goals", "depth")
 
 
+
+def _render(wrapper, worlds, maker: str):
+    """Frames of ``worlds`` (an index, or None for all) of a Gymnasium wrapper's batched env at its
+    ``render_size`` and ``camera``; None, with Gymnasium's warning naming ``gymnasium.<maker>``,
+    when it was made without a render mode."""
+    if wrapper.render_mode is None:
+        gym.logger.warn(f"render() was called without a render mode; make the env with "
+                        f"gymnasium.{maker}(..., render_mode='rgb_array') to get frames")
+        return None
+    height, width = wrapper.render_size
+    return wrapper.env.render(worlds, width=width, height=height, camera=wrapper.camera)
+
 class HikingGymEnv(gym.Env):
     """One world of the hiking env behind the Gymnasium API.
 
@@ -112,12 +124,7 @@ class HikingGymEnv(gym.Env):
         Raises:
             RenderingUnavailableError: no OpenGL context (names MUJOCO_GL and what to install).
         """
-        if self.render_mode is None:
-            gym.logger.warn("render() was called without a render mode; make the env with "
-                            "gymnasium.make(..., render_mode='rgb_array') to get frames")
-            return None
-        height, width = self.render_size
-        return self.env.render(0, width=width, height=height, camera=self.camera)
+        return _render(self, 0, "make")
 
     def close(self) -> None:
         """Free the renderer's OpenGL context, if any."""
@@ -276,12 +283,8 @@ class HikingVectorEnv(VectorEnv):
         Raises:
             RenderingUnavailableError: no OpenGL context (names MUJOCO_GL and what to install).
         """
-        if self.render_mode is None:
-            gym.logger.warn("render() was called without a render mode; make the env with "
-                            "gymnasium.make_vec(..., render_mode='rgb_array') to get frames")
-            return None
-        height, width = self.render_size
-        return tuple(self.env.render(None, width=width, height=height, camera=self.camera))
+        frames = _render(self, None, "make_vec")
+        return None if frames is None else tuple(frames)
 
     def close_extras(self, **kwargs) -> None:
         """Free the renderer's OpenGL context, if any."""
