@@ -172,9 +172,14 @@ class DepthHistory(Transform):
             hist = frame.unsqueeze(-3).expand(*frame.shape[:-2], self.history, *frame.shape[-2:])
             hist = hist.clone()
         else:
-            rolled = torch.cat([hist[..., 1:, :, :], frame.unsqueeze(-3).to(hist.dtype)], dim=-3)
             tick = batch_flag(next_tensordict, self.tick_key, next_tensordict.batch_size, "tick")
-            hist = rolled if tick is None else torch.where(expand_right(tick, rolled), rolled, hist)
+            if tick is None or bool(tick.all()):
+                hist = torch.cat([hist[..., 1:, :, :], frame.unsqueeze(-3).to(hist.dtype)], dim=-3)
+            elif bool(tick.any()):
+                # only the ticking worlds' histories move (in place: the stored stacks are copies,
+                # _output); the others are left untouched rather than rewritten with themselves
+                rows = tick.nonzero(as_tuple=True)
+                hist[rows] = torch.cat([hist[rows][..., 1:, :, :], frame[rows].unsqueeze(-3).to(hist.dtype)], dim=-3)
         self._history = hist
         next_tensordict.set(self.out_key, self._output(hist))
         return next_tensordict
@@ -203,8 +208,9 @@ class DepthHistory(Transform):
                     f"the history holds {tuple(hist.shape)}; do a full reset first"
                 )
             hist = fill.clone()  # first reset is partial: every world starts from its frame
-        else:
-            hist = torch.where(expand_right(mask, hist), fill, hist)
+        elif bool(mask.any()):  # the reset worlds' rows only, in place (see _call)
+            rows = mask.nonzero(as_tuple=True)
+            hist[rows] = fill[rows]
         self._history = hist
         tensordict_reset.set(self.out_key, self._output(hist))
         return tensordict_reset
