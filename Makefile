@@ -22,7 +22,7 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --upgrade pip >/dev/null
 	$(PY) -m pip install torch==2.13.0
-	$(PY) -m pip install -e '.[dev,deploy,ray,gpu,rsl_rl]'
+	$(PY) -m pip install -e '.[dev,deploy,ray,gpu,rsl_rl,viewer]'
 	touch $(STAMP)
 
 demo: venv gl

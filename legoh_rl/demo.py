@@ -63,6 +63,7 @@ def main(argv: list[str] | None = None) -> None:
     result = evaluate_recipe.evaluate(_compose("evaluate", [
         f"checkpoint={policy}", "categories=[randommix,ditch]", "levels=[0,1]", "robots_per_cell=4",
         f"output_dir={eval_dir}", "video_seconds=6", "logger.exp_name=demo_eval",
+        "overwrite=true",  # the last demo's evaluation is moved aside, as its training is
     ]))
     wandb_runs = sorted(str(p) for p in OUT.rglob("offline-run-*") if p.is_dir())
     print(f"\ndemo finished in {time.perf_counter() - start:.0f} s. Artefacts:")

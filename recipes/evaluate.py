@@ -10,6 +10,7 @@ logs all of it to wandb (offline by default).
     python recipes/evaluate.py checkpoint=zero robot=g1       # PD-hold baseline, no policy
     python recipes/evaluate.py checkpoint=... trail_seeds=[0,1,2]   # three trail sets pooled
     python recipes/evaluate.py checkpoint=deploy/oracle_h1.onnx     # ONNX export, onnxruntime
+    python recipes/evaluate.py checkpoint=... video_per_category=true   # also videos/<category>.mp4
     python recipes/evaluate.py checkpoint=... device=cpu            # a GPU-trained checkpoint on the CPU
     python recipes/evaluate.py checkpoint=... domain_rand=true      # under the training's randomisation
 
@@ -20,6 +21,13 @@ with onnxruntime (``pip install 'legoh-rl[deploy]'``) in the same loop (docs/dep
 Beside its tables an evaluation leaves ``evaluated_with.json``: the checkpoint file's SHA-256 and
 every setting its figures depend on (:func:`evaluation_record`), so ``recipes/paper_tables.py``
 can take it up instead of evaluating the same checkpoint on the same protocol again.
+
+An ``output_dir`` belongs to one evaluation at a time (``legoh_rl/training/run_dir.py``,
+``open_eval_dir``): a second evaluation into a folder where one is running is refused with the
+running one's pid, and a folder that already holds an evaluation's files is refused unless
+``overwrite=true``, which moves them into ``overwritten-<time>/`` inside it first (nothing is
+deleted). Each trail grid's env is released before the next is built, so the peak memory does
+not grow with ``trail_seeds`` (``benchmarks/eval_memory.py``).
 
 ``domain_rand=true`` runs the benchmark under the training's domain randomisation (friction,
 base mass and CoM, motor strength, pushes every 8 s, one step of action delay): a robustness test
@@ -47,24 +55,40 @@ import hydra  # noqa: E402
 import torch  # noqa: E402
 from omegaconf import DictConfig, ListConfig, OmegaConf  # noqa: E402
 
+from legoh_rl.envs.config import PHYSICS  # noqa: E402
 from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS, DomainRandConfig  # noqa: E402
+from legoh_rl.envs.robots import ROBOTS  # noqa: E402
+from legoh_rl.envs.trails import ALL_CATEGORIES  # noqa: E402
 from legoh_rl.training.checkpoint import file_digest, load_checkpoint  # noqa: E402
+from legoh_rl.training.config_checks import (  # noqa: E402
+    Choice,
+    Flag,
+    Integer,
+    ListOf,
+    Name,
+    check_known_keys,
+    check_settings,
+    recipe_keys,
+)
 from legoh_rl.training.device import resolve_device  # noqa: E402
 from legoh_rl.training.evaluation import (  # noqa: E402
     EvalProtocol,
     aggregate,
+    category_worlds,
     cell_table,
     eval_scalars,
     long_table,
     markdown_table,
     plot_trajectories,
-    render_video,
+    release_memory,
+    render_videos,
     run_protocol,
     write_csv,
     write_episodes,
 )
 from legoh_rl.training.logging import make_logger  # noqa: E402
 from legoh_rl.training.policies import load_policy  # noqa: E402
+from legoh_rl.training.run_dir import open_eval_dir  # noqa: E402
 
 PAPER_ROBOTS_PER_CELL = 20  # 20 x 25 cells = 500 ~ the paper's 512 robots
 PAPER_RUNS = 5
@@ -137,11 +161,62 @@ def trail_seeds_of(cfg: DictConfig) -> list[int]:
     seeds = numbers_of("trail_seeds", seeds)
     if not seeds or len(set(seeds)) != len(seeds):
         raise ValueError(f"trail_seeds must be a non-empty list of distinct seeds, got {seeds}")
+    if min(seeds) < 0:
+        raise ValueError(f"trail_seeds must be seeds >= 0, got {seeds}")
     return seeds
 
 
+#: ``evaluate.yaml``'s settings by kind (``legoh_rl/training/config_checks.py``) but for the numbers
+#: and lists that :func:`number_of` and :func:`numbers_of` read (they take "3" for 3, as quoting on
+#: a command line may give them), ``protocol`` and ``domain_rand``, which have their own checks
+SETTINGS = {
+    "checkpoint": Name(),
+    "robot": Choice(tuple(ROBOTS), what="robot"),
+    "categories": ListOf(Choice(ALL_CATEGORIES, what="trail category")),
+    "num_threads": Integer(1, nullable=True),
+    "physics": Choice(PHYSICS),
+    "device": Name(nullable=True),  # which devices: resolve_device
+    "output_dir": Name(),
+    "overwrite": Flag(),
+    "video": Flag(),
+    "video_per_category": Flag(),
+    "logger.backend": Choice(("wandb", "csv")),
+    "logger.online": Flag(),
+    "logger.project": Name(),
+    "logger.exp_name": Name(),
+    "logger.group": Name(nullable=True),
+}
+
+
+def validate(cfg: DictConfig) -> None:
+    """Check every setting before any work, each refusal naming the key and the value: no key
+    that ``evaluate.yaml`` does not have, :data:`SETTINGS` of their kind, ``variants`` >= 1,
+    ``seed`` >= 0 and ``video_seconds`` a number (positive, unless ``video=false``); then the
+    protocol (:func:`protocol_of`), :func:`trail_seeds_of` and :func:`domain_rand_of`.
+
+    Raises:
+        ValueError: the first bad setting.
+    """
+    if cfg.get("checkpoint") is None:
+        raise ValueError("checkpoint is required: a .pt file from a recipe, a .onnx export, or 'zero' for the "
+                         "PD-hold baseline")
+    check_known_keys(cfg, recipe_keys(Path(__file__).parent / "config" / "evaluate.yaml"), name="evaluate's config")
+    check_settings(cfg, SETTINGS)
+    if number_of("variants", cfg.variants) < 1:
+        raise ValueError(f"variants must be >= 1 (trail variants per cell), got {cfg.variants!r}")
+    if number_of("seed", cfg.seed) < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {cfg.seed!r}")
+    seconds = number_of("video_seconds", cfg.video_seconds, float)
+    if cfg.video and not seconds > 0.0:
+        raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
+    protocol_of(cfg)
+    trail_seeds_of(cfg)
+    domain_rand_of(cfg)
+
+
 #: ``evaluate.yaml`` keys that do not change an evaluation's figures (where it runs, what it logs)
-NOT_IN_RECORD = ("checkpoint", "output_dir", "video", "logger", "device", "num_threads")
+NOT_IN_RECORD = ("checkpoint", "output_dir", "overwrite", "video", "video_per_category", "logger", "device",
+                 "num_threads")
 #: keys added to ``evaluate.yaml`` after records were first written, with the value that gives the
 #: evaluation made before the key existed: recorded only when set otherwise, so older records still
 #: describe the evaluations they were written for
@@ -172,28 +247,35 @@ def domain_rand_of(cfg: DictConfig) -> bool | tuple[str, ...]:
         raise ValueError(f"domain_rand must be true, false or a non-empty list of terms {list(DOMAIN_RAND_TERMS)}, "
                          f"got {value!r}")
     terms = tuple(str(t) for t in value)
-    DomainRandConfig().only(terms)  # names an unknown term
+    try:
+        DomainRandConfig().only(terms)  # names an unknown term
+    except ValueError as err:
+        raise ValueError(f"domain_rand: {err}") from None
     if len(set(terms)) != len(terms):
         raise ValueError(f"domain_rand terms must be distinct, got {list(terms)}")
     return terms
 
 
 def evaluate(cfg: DictConfig) -> dict:
-    """Run the benchmark described by ``cfg``; returns the aggregate and the artefact paths."""
-    if cfg.checkpoint is None:
-        raise ValueError("checkpoint is required: a .pt file from a recipe, a .onnx export, or 'zero' for the "
-                         "PD-hold baseline")
-    if cfg.video and not number_of("video_seconds", cfg.video_seconds, float) > 0.0:  # before the evaluation
-        raise ValueError(f"video_seconds must be positive (or video=false for no video), got {cfg.video_seconds}")
+    """Run the benchmark described by ``cfg`` (every setting checked first: :func:`validate`) in
+    its ``output_dir``, taken for this evaluation alone (``open_eval_dir``); returns the aggregate
+    and the artefact paths."""
+    validate(cfg)
     protocol = protocol_of(cfg)
     seeds = trail_seeds_of(cfg)
     variants = number_of("variants", cfg.variants)
     domain_rand = domain_rand_of(cfg)
     device = resolve_device(cfg.get("device"))
     cfg = OmegaConf.merge(cfg, {"device": str(device)})  # the logged config records the device it ran on
-    torch.set_num_threads(1)
     out_dir = Path(cfg.output_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with open_eval_dir(out_dir, overwrite=bool(cfg.get("overwrite", False))):  # this evaluation's alone
+        return _evaluate(cfg, protocol, seeds, variants, domain_rand, device, out_dir)
+
+
+def _evaluate(cfg: DictConfig, protocol: EvalProtocol, seeds: list[int], variants: int,
+              domain_rand: bool | tuple[str, ...], device: torch.device, out_dir: Path) -> dict:
+    """:func:`evaluate`'s work on its checked settings, in the output folder it holds."""
+    torch.set_num_threads(1)
     record = evaluation_record(cfg)
     (out_dir / RECORD_NAME).unlink(missing_ok=True)  # a stale record must not outlive the tables it described
     episodes = []
@@ -205,9 +287,13 @@ def evaluate(cfg: DictConfig) -> dict:
                                         physics=cfg.get("physics", "mujoco"), domain_rand=domain_rand)
         part = run_protocol(env, policy, replace(protocol, seed=seed), progress=True)
         episodes += [{**e, "run": i * protocol.runs + e["run"], "trail_seed": seed} for e in part.episodes]
-        if i == 0:
-            first_env, first_policy, result = env, policy, part
-    env, policy = first_env, first_policy  # the plot and the video show the first trail set
+        if i == 0:  # the plot and the video show the first trail set, drawn while its env lives
+            result = part
+            plot = plot_trajectories(env, result, out_dir / "trajectories.png")
+            video, category_videos = eval_videos(env, policy, protocol, cfg, out_dir) if cfg.video else (None, {})
+        env.close()  # each grid's env gone before the next is built: memory does not grow with the grids
+        del env, policy, part
+        release_memory()
     result.episodes = episodes
     rows = aggregate(result.episodes)
     level_rows = aggregate(result.episodes, by="level")
@@ -219,8 +305,6 @@ def evaluate(cfg: DictConfig) -> dict:
     cells = cell_table(result.episodes)
     (out_dir / "table_cells.md").write_text(cells + "\n")
     write_episodes(result.episodes, out_dir / "episodes.csv")
-    plot = plot_trajectories(env, result, out_dir / "trajectories.png")
-    video = render_video(env, policy, out_dir / "robots.mp4", seconds=cfg.video_seconds) if cfg.video else None
     dr_note = ("" if not domain_rand else ", with domain randomisation" if domain_rand is True
                else f", with domain randomisation of {', '.join(domain_rand)} only")
     print(f"\n{kind} policy, {len(result.episodes)} episodes ({protocol.robots_per_cell} robots x "
@@ -234,12 +318,35 @@ def evaluate(cfg: DictConfig) -> dict:
                          cfg.logger.online, config=OmegaConf.to_container(cfg, resolve=True), group=group)
     level_scalars = {k: v for k, v in eval_scalars(level_rows).items() if "/overall/" not in k}
     logger.log_metrics({**eval_scalars(rows), **level_scalars}, step=0)
-    _log_media(logger, rows, level_rows, plot, video)
+    _log_media(logger, rows, level_rows, plot, video, category_videos)
     (out_dir / RECORD_NAME).write_text(json.dumps(record, indent=1) + "\n")
     artefacts = {"table": str(out_dir / "table.md"), "levels": str(out_dir / "table_levels.md"), "csv": str(csv_path), "plot": str(plot),
                  "video": str(video) if video else None}
     print("\nartefacts:\n" + "\n".join(f"  {k:6} {v}" for k, v in artefacts.items() if v))
-    return {"rows": rows, "episodes": result.episodes, **artefacts}
+    for category, path in category_videos.items():
+        print(f"  video of {category}: {path}")
+    return {"rows": rows, "episodes": result.episodes, **artefacts,
+            "category_videos": {c: str(p) for c, p in category_videos.items()}}
+
+
+def eval_videos(env, policy, protocol: EvalProtocol, cfg: DictConfig, out_dir: Path) -> tuple[Path | None, dict]:
+    """The evaluation's videos, drawn in one rollout (:func:`render_videos`): ``robots.mp4``, the
+    first four robots, and with ``video_per_category=true`` one clip per category,
+    ``videos/<category>.mp4``, its robots one per level (:func:`category_worlds`).
+
+    Returns:
+        (robots.mp4 or None, {category: clip}); (None, {}) when this machine cannot render.
+    """
+    main = out_dir / "robots.mp4"
+    clips = {main: list(range(min(4, protocol.num_worlds)))}
+    per_category = {}
+    if cfg.get("video_per_category", False):
+        per_category = {c: out_dir / "videos" / f"{c}.mp4" for c in protocol.categories}
+        clips.update({path: category_worlds(protocol, c) for c, path in per_category.items()})
+    written = render_videos(env, policy, clips, seconds=number_of("video_seconds", cfg.video_seconds, float))
+    if written is None:
+        return None, {}
+    return written[main], per_category
 
 
 def checkpoint_experiment(checkpoint) -> str | None:
@@ -250,9 +357,11 @@ def checkpoint_experiment(checkpoint) -> str | None:
     return load_checkpoint(checkpoint).get("meta", {}).get("experiment")
 
 
-def _log_media(logger, rows: dict, level_rows: dict, plot: Path, video: Path | None) -> None:
+def _log_media(logger, rows: dict, level_rows: dict, plot: Path, video: Path | None,
+               category_videos: dict | None = None) -> None:
     """The tables (numeric columns: by, group, metric, mean, std), the trajectory plot and the
-    video, in one wandb call (nothing for the CSV logger, which has the scalars)."""
+    videos (``eval/video``, ``eval/video_<category>``), in one wandb call (nothing for the CSV
+    logger, which has the scalars)."""
     exp = getattr(logger, "experiment", None)
     if exp is None or not hasattr(exp, "log"):
         return
@@ -263,6 +372,8 @@ def _log_media(logger, rows: dict, level_rows: dict, plot: Path, video: Path | N
     media = {"eval/table": wandb.Table(columns=columns, data=data), "eval/trajectories": wandb.Image(str(plot))}
     if video is not None:
         media["eval/video"] = wandb.Video(str(video), format="mp4")
+    for category, path in (category_videos or {}).items():
+        media[f"eval/video_{category}"] = wandb.Video(str(path), format="mp4")
     exp.log(media)
     exp.finish()
 

@@ -34,6 +34,8 @@ from legoh_rl.objectives.ppo import (
 )
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
+    check_recipe_settings,
+    env_config,
     make_env,
     make_oracle,
     policy_meta,
@@ -49,6 +51,7 @@ from legoh_rl.training.checkpoint import (
     resume_path,
     set_rng_state,
 )
+from legoh_rl.training.config_checks import Integer, ListOf, Name, Number
 from legoh_rl.training.config_store import register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
@@ -58,6 +61,16 @@ from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 
 register_configs()  # the env group's defaults, read from HikingEnvConfig
+
+#: this recipe's own settings by kind (beside builders' ENV_SETTINGS and TRAINING_SETTINGS);
+#: model.layers has its own check (require_layers)
+SETTINGS = {
+    "model.init_std": Number(0, low_open=True),
+    "model.max_std": Number(0, low_open=True, nullable=True),
+    "checkpoint.init": Name(nullable=True),
+    "feedforward_anneal": ListOf(Integer(0), nullable=True),  # [start, end]: check_anneal
+    "update_threads": Integer(1, nullable=True),
+}
 
 
 def ppo_config(cfg: DictConfig) -> PPOConfig:
@@ -81,6 +94,8 @@ def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu")
 
 def validate(cfg: DictConfig) -> None:
     """Check every config value before any work (each error names the setting and its value)."""
+    check_recipe_settings(cfg, Path(__file__).parent / "config" / "oracle_ppo.yaml", SETTINGS)
+    env_config(cfg.env, "oracle")  # the env section's combinations (a gait clock for its terms, ...): nothing built
     require_count("env", cfg.env, "num_envs")
     require_count("collector", cfg.collector, "steps_per_env", "total_frames")
     require_count("ppo", cfg.ppo, "num_epochs", "num_minibatches")

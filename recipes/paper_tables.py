@@ -505,6 +505,9 @@ class Settings:
                 "levels": list(self.levels), "trail_seeds": list(self.trail_seeds), "device": self.device,
                 "num_threads": self.num_threads, "output_dir": str(output_dir), "video": self.video,
                 "domain_rand": self.domain_rand,
+                # evaluated again only where no evaluation there matches: the earlier one moves into
+                # overwritten-<time>/ (where find_evaluation still finds it), not mixed with the new
+                "overwrite": True,
                 "logger": {"backend": self.logger, "exp_name": f"paper_tables_{output_dir.name}"}}
 
     def describe(self) -> str:
@@ -593,8 +596,7 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse:
         print(f"{path}: reusing the evaluation in {found} (same checkpoint and protocol)", flush=True)
         rows = read_table_csv(found / "table.csv")
     else:
-        stamp.unlink(missing_ok=True)  # a stale record must not outlive the evaluation it described
-        rows = evaluate_recipe.evaluate(cfg)["rows"]
+        rows = evaluate_recipe.evaluate(cfg)["rows"]  # moves an earlier evaluation there aside, its record too
         stamp.parent.mkdir(parents=True, exist_ok=True)
         stamp.write_text(json.dumps(record, indent=1) + "\n")
         found = output_dir

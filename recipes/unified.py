@@ -34,12 +34,14 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
+from legoh_rl.modules.configs import PERCEPTION_PRESETS
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
 from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
+    check_recipe_settings,
     gait_kwargs,
     make_env,
     policy_meta,
@@ -56,6 +58,7 @@ from legoh_rl.training.checkpoint import (
     resume_path,
     set_rng_state,
 )
+from legoh_rl.training.config_checks import Choice, Flag, Integer, Name, Number
 from legoh_rl.training.config_store import register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.distill import (
@@ -74,8 +77,42 @@ from legoh_rl.training.student import LOCOMOTIONS, make_student, student_env
 
 register_configs()  # the env group's defaults, read from HikingEnvConfig
 
+#: this recipe's own settings by kind (beside builders' ENV_SETTINGS and TRAINING_SETTINGS);
+#: encoder_grad_fraction, dagger_minibatches and minibatch_split have their own checks in validate
+SETTINGS = {
+    "teacher": Name(),
+    "student.perception": Choice(tuple(sorted(PERCEPTION_BUILDERS))),
+    "student.preset": Choice(tuple(PERCEPTION_PRESETS)),
+    "student.init_std": Number(0, low_open=True, nullable=True),
+    "student.locomotion": Choice(LOCOMOTIONS),
+    "dagger_iters": Integer(0),
+    "dagger_beta0": Number(0, 1),
+    "dagger_decay_iters": Integer(1, nullable=True),
+    "dagger_epochs": Integer(1),
+    "fused_adam": Flag(),
+    "dagger_replay.capacity": Integer(0, text=">= 0 (0: off)"),
+    "dagger_replay.batch_size": Integer(1),
+    "dagger_replay.steps": Integer(1),
+    "ppo.weight": Number(0),
+    **{f"imitation.{w}": Number(0) for w in ("w1", "w2", "w3", "w_priv")},
+    "hlm.enabled": Flag(),
+    "hlm.vanilla_vae": Flag(),
+    **{f"hlm.{w}": Number(0) for w in ("w4", "w5", "w6", "w7", "w8", "c_mt", "c_ms")},
+    "hlm.mask_ratio": Number(0, 1, high_open=True),
+    "hlm.vae_lr": Number(0, low_open=True),
+    "hlm.vae_steps": Integer(1),
+    "hlm.warmup_iters": Integer(0),
+    "checkpoint.branch": Name(nullable=True),
+    "allow_new_teacher": Flag(),
+}
+
 
 def validate(cfg: DictConfig) -> None:
+    """Check every config value before any work (each error names the setting and its value);
+    the env section's combinations are checked with the teacher's gait clock, by ``make_env``."""
+    if cfg.get("teacher") is None:
+        raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
+    check_recipe_settings(cfg, Path(__file__).parent / "config" / "unified.yaml", SETTINGS)
     if cfg.student.perception not in PERCEPTION_BUILDERS:  # the registry is the one list of networks
         raise ValueError(f"unknown student.perception {cfg.student.perception!r}; valid: {sorted(PERCEPTION_BUILDERS)}")
     check_locomotion(cfg)

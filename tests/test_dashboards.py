@@ -175,3 +175,35 @@ def test_training_videos_every_k_iterations(tmp_path):
     frames = imageio.mimread(videos[0])
     assert len(frames) == 5 and frames[0].shape == (240, 640, 3)  # 0.2 s at 25 fps; two 320 x 240 tiles
     assert frames[0].std() > 5  # not a blank frame
+
+
+def test_trajectory_plot_titles_do_not_overlap():
+    """Four stacked panels (one per tile): no panel's title runs into the panel above it (its axes
+    or its x tick labels) or into another title."""
+    from types import SimpleNamespace
+
+    import matplotlib.pyplot as plt
+    from scenes import BoxScene
+
+    from legoh_rl.training.evaluation import EvalResult, trajectory_figure
+
+    scene = BoxScene(boxes=[((3.0, 0.0, 0.1), (0.2, 1.0, 0.1))], num_levels=4)
+    xs = np.linspace(0.0, 4.0, 50)
+    result = EvalResult(trajectories={w: np.stack([xs, 0.1 * w + 0 * xs], 1) for w in range(4)},
+                        times={w: xs / 2.0 for w in range(4)}, tiles={w: w for w in range(4)})
+    fig = trajectory_figure(SimpleNamespace(trails=scene), result)
+    try:
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        axes = [ax for ax in fig.axes if ax.get_title()]
+        assert [ax.get_title() for ax in axes] == [f"flat, level {k}" for k in range(4)]
+        titles = [ax.title.get_window_extent(renderer) for ax in axes]
+        for k in range(1, len(axes)):
+            above = axes[k - 1]
+            for box in (above.get_window_extent(renderer), above.xaxis.get_tightbbox(renderer)):
+                assert not titles[k].overlaps(box), (k, titles[k], box)
+        for i in range(len(titles)):
+            for j in range(i + 1, len(titles)):
+                assert not titles[i].overlaps(titles[j])
+    finally:
+        plt.close(fig)

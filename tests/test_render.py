@@ -223,3 +223,197 @@ def test_gymnasium_without_render_mode_and_bad_modes():
     env.reset(seed=0)
     with pytest.warns(UserWarning, match="without a render mode"):
         assert env.render() is None
+
+
+# ------------------------------------------------------------------ the look of the videos
+
+
+def test_decimate_mesh_welds_a_dense_sphere():
+    """Vertex clustering keeps the shape (every vertex within a cell of the sphere) with far
+    fewer triangles, no degenerate or unused ones."""
+    from legoh_rl.envs.render import decimate_mesh
+
+    u, v = np.meshgrid(np.linspace(0, np.pi, 60), np.linspace(0, 2 * np.pi, 120), indexing="ij")
+    verts = np.stack([np.sin(u) * np.cos(v), np.sin(u) * np.sin(v), np.cos(u)], -1).reshape(-1, 3)
+    idx = np.arange(60 * 120).reshape(60, 120)
+    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
+    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)])
+    light_v, light_f = decimate_mesh(verts, faces, cell=0.2)
+    assert light_f.shape[0] < faces.shape[0] / 8 and light_f.shape[0] > 50
+    assert np.abs(np.linalg.norm(light_v, axis=1) - 1.0).max() < 0.2
+    assert np.unique(light_f).size == light_v.shape[0]  # every vertex used
+    assert ((light_f[:, 0] != light_f[:, 1]) & (light_f[:, 1] != light_f[:, 2]) & (light_f[:, 0] != light_f[:, 2])).all()
+    with pytest.raises(ValueError, match="cell must be a positive length"):
+        decimate_mesh(verts, faces, cell=0.0)
+
+
+def test_inset_image_puts_a_framed_depth_tile_top_right():
+    from legoh_rl.envs.render import inset_image
+
+    frame = np.full((48, 64, 3), 7, np.uint8)
+    depth = np.tile(np.linspace(1.0, 0.0, 8)[:, None], (1, 8))  # far at the top, near at the bottom
+    out = inset_image(frame, depth[None], fraction=0.5)
+    assert out is frame
+    h = w = 24
+    top, left = 3, 64 - 3 - w - 2
+    assert (frame[top, left : left + w + 2] == 255).all() and (frame[top + h + 1, left : left + w + 2] == 255).all()
+    tile = frame[top + 1 : top + 1 + h, left + 1 : left + 1 + w].astype(int)
+    assert tile[-1].sum() > tile[0].sum() + 300  # near is bright
+    assert (frame[:, :left] == 7).all() and (frame[top + h + 2 :] == 7).all()  # the rest untouched
+    with pytest.raises(ValueError, match=r"inset image must be \(h, w\)"):
+        inset_image(frame, np.zeros((2, 3, 4, 5)))
+
+
+def test_render_model_is_a_styled_copy_and_physics_is_untouched(env):
+    """Frames are drawn with a second model: the physics model's visual fields stay as built, and
+    steps with renders in between give bit-identical observations and rewards."""
+    _gl_context_or_skip()
+    from legoh_rl.envs.render import check_same_layout
+
+    phys = env.worlds.model
+    before = {k: getattr(phys, k).copy() for k in ("geom_rgba", "geom_group", "geom_matid", "light_castshadow",
+                                                    "light_dir", "mat_rgba")}
+    gen = torch.Generator().manual_seed(3)
+    actions = [(torch.rand(2, env.A, generator=gen) * 2 - 1) * 0.5 for _ in range(6)]
+
+    def rollout(render: bool) -> list:
+        env.set_seed(11)
+        tds = [env.reset()]
+        for a in actions:
+            tds.append(env.step(TensorDict({"action": a}, batch_size=env.batch_size))["next"])
+            if render:
+                env.render(width=W, height=H, route=True)
+        return tds
+
+    plain, drawn = rollout(False), rollout(True)
+    for x, y in zip(plain, drawn, strict=True):
+        for key in x.keys(include_nested=True, leaves_only=True):
+            torch.testing.assert_close(x[key], y[key], rtol=0, atol=0, equal_nan=True, msg=str(key))
+    for k, v in before.items():
+        np.testing.assert_array_equal(getattr(phys, k), v, err_msg=k)
+    styled = env.render_model
+    assert styled is not phys and styled.ntex >= 2 and phys.ntex == 0  # the sky and the ground's grid
+    robot_faces = lambda m: sum(int(m.mesh_facenum[m.geom_dataid[g]]) for g in np.flatnonzero(  # noqa: E731
+        (m.geom_type == mujoco.mjtGeom.mjGEOM_MESH) & (m.geom_bodyid > 0)))
+    assert robot_faces(styled) < robot_faces(phys) / 5  # the decimated robot
+    with pytest.raises(ValueError, match="rendering model's layout differs.*'nq'"):
+        check_same_layout(phys, mujoco.MjModel.from_xml_string("<mujoco/>"))
+
+
+def test_frames_show_sky_lit_ground_and_the_route(env):
+    """The video camera's frame: a blue sky (not black), a ground with contrast (checker, grid,
+    shading), and with route=True the goal being walked to (yellow), P_A (green) and the route
+    (blue), which are not there without it."""
+    _gl_context_or_skip()
+    from legoh_rl.training.evaluation import VIDEO_CAMERA
+
+    env.reset()
+    f = env.render(0, 160, 120, camera=VIDEO_CAMERA, route=True).astype(int)
+    g = env.render(0, 160, 120, camera=VIDEO_CAMERA, route=False).astype(int)
+    sky = f[:6].reshape(-1, 3).mean(0)
+    assert sky[2] > 150 and sky[2] > sky[0] + 30, sky
+    assert f[80:120, :50].mean(-1).std() > 6.0  # a ground patch beside the robot
+
+    def marks(x):
+        r, gr, b = x[..., 0], x[..., 1], x[..., 2]
+        return {"yellow": int(((r > 200) & (gr > 170) & (b < 90)).sum()),
+                "green": int(((gr > r + 60) & (gr > b + 40)).sum()),
+                "blue": int(((b > r + 80) & (b > gr + 40) & (np.arange(x.shape[0])[:, None] > 30)).sum())}
+
+    with_route, without = marks(f), marks(g)
+    assert with_route["yellow"] >= without["yellow"] + 3, (with_route, without)
+    assert with_route["green"] >= without["green"] + 10 and with_route["blue"] >= without["blue"] + 10, (with_route,
+                                                                                                          without)
+
+
+def test_terrain_is_drawn_finely_only_near_the_robot(env):
+    """The trail heightfield is drawn in chunks: one level of detail per chunk, the finest only
+    near the robot; a frame draws far fewer terrain triangles than the whole field."""
+    _gl_context_or_skip()
+    from legoh_rl.envs.render import TERRAIN_CHUNK, TERRAIN_LOD, TerrainDetail
+
+    m = env.render_model
+    detail = TerrainDetail(m)
+    xy = env.worlds.qpos[0, :2]
+    detail(xy)
+    shown = detail.table[m.geom_group[detail.table] == 0]
+    assert (m.geom_group[detail.table] == 0).sum(axis=1).tolist() == [1] * len(detail.table)  # one level each
+    fine = detail.table[:, 0][m.geom_group[detail.table[:, 0]] == 0]
+    assert fine.size and np.all(np.linalg.norm(m.geom_pos[fine, :2] - xy, axis=1)
+                                < TERRAIN_LOD[0][1] + TERRAIN_CHUNK * 0.1 * 0.75)
+    tris = lambda ids: int(sum(2 * (m.hfield_nrow[m.geom_dataid[g]] - 1) * (m.hfield_ncol[m.geom_dataid[g]] - 1)  # noqa: E731
+                               for g in ids))
+    phys = env.worlds.model
+    whole = 2 * (int(phys.hfield_nrow[0]) - 1) * (int(phys.hfield_ncol[0]) - 1)
+    assert tris(shown) < whole / 2, (tris(shown), whole)
+
+
+def test_video_clips_show_the_students_depth_inset_and_a_progress_bar(tmp_path, capsys):
+    """render_videos on an env with the depth camera: one rollout writes every clip (a world may
+    be in several), each world's tile has the latest depth image framed in white at its top
+    right; a tqdm bar counts the frames."""
+    _gl_context_or_skip()
+    import imageio.v2 as imageio
+
+    from legoh_rl.training.evaluation import render_videos
+    from legoh_rl.training.policies import ZeroPolicy
+
+    scene = BoxScene(boxes=[((1.5, 0.0, 0.15), (0.2, 1.0, 0.15))])
+    denv = HikingEnv(HikingEnvConfig(num_envs=2, depth=True, num_threads=1), trails=scene)
+    try:
+        clips = {tmp_path / "both.mp4": [0, 1], tmp_path / "one.mp4": [1]}
+        written = render_videos(denv, ZeroPolicy(denv.A), clips, seconds=0.1, size=(H, W))
+        assert set(written) == set(clips)
+        both, one = imageio.mimread(tmp_path / "both.mp4"), imageio.mimread(tmp_path / "one.mp4")
+        assert len(both) == len(one) == 3 and both[0].shape == (H, 2 * W, 3) and one[0].shape == (H, W, 3)
+        assert "video (2 robots)" in capsys.readouterr().err
+        h = round(0.34 * H)
+        left = W - 3 - h - 2  # a square inset (64 x 64 depth images)
+        for tile in (both[-1][:, :W], both[-1][:, W:], one[-1]):
+            # the white frame (after the video codec's chroma blur; the sky there is ~185)
+            border = tile[3, left : W - 3].astype(int).mean(-1)
+            assert (border > 215).all(), border
+            inset = tile[4 : 4 + h, left + 1 : W - 4].astype(int).mean(-1)
+            assert inset[-1].mean() > inset[0].mean() + 60  # near (the ground below) bright, far dark
+    finally:
+        denv.close()
+
+
+def test_category_worlds_take_one_robot_per_level_first():
+    from legoh_rl.training.evaluation import EvalProtocol, category_worlds
+
+    protocol = EvalProtocol(categories=("ditch", "gap"), levels=(0, 2, 4), robots_per_cell=2)
+    # worlds: ditch L0 r0, r1 = 0, 1; ditch L2 = 2, 3; ditch L4 = 4, 5; gap L0 = 6, 7; ...
+    assert category_worlds(protocol, "gap") == [6, 8, 10, 7]
+    assert category_worlds(protocol, "ditch", count=2) == [0, 2]
+    with pytest.raises(ValueError, match="category 'forest' is not in the protocol's categories"):
+        category_worlds(protocol, "forest")
+
+
+def test_evaluation_writes_one_clip_per_category_when_asked(env, tmp_path):
+    """evaluate.py's video_per_category=true: robots.mp4 and videos/<category>.mp4 for each
+    category, from one rollout."""
+    _gl_context_or_skip()
+    import sys
+    from pathlib import Path
+
+    import imageio.v2 as imageio
+    from omegaconf import OmegaConf
+
+    from legoh_rl.training.evaluation import EvalProtocol
+    from legoh_rl.training.policies import ZeroPolicy
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
+    import evaluate as evaluate_recipe
+
+    protocol = EvalProtocol(categories=("randommix", "gap"), levels=(0,), robots_per_cell=1)  # 2 worlds, as env
+    cfg = OmegaConf.create({"video_per_category": True, "video_seconds": 0.06})
+    main, per_category = evaluate_recipe.eval_videos(env, ZeroPolicy(env.A), protocol, cfg, tmp_path)
+    assert main == tmp_path / "robots.mp4" and imageio.mimread(main)[0].shape == (240, 640, 3)
+    assert per_category == {c: tmp_path / "videos" / f"{c}.mp4" for c in ("randommix", "gap")}
+    for path in per_category.values():
+        frames = imageio.mimread(path)
+        assert len(frames) == 2 and frames[0].shape == (240, 320, 3)
+    cfg.video_per_category, cfg.video_seconds = False, 0.02  # one frame
+    assert evaluate_recipe.eval_videos(env, ZeroPolicy(env.A), protocol, cfg, tmp_path / "b")[1] == {}
+    assert not (tmp_path / "b" / "videos").exists()

@@ -175,7 +175,7 @@ def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, t
     assert unified.build(tiny(teacher, tmp_path)).replay is None  # off by default
     with pytest.raises(ValueError, match=r"dagger_replay.capacity must be >= 0 \(0: off\), got -1"):
         unified.build(tiny(teacher, tmp_path, "dagger_replay.capacity=-1"))
-    with pytest.raises(ValueError, match="LocomotionReplay steps must be >= 1, got 0"):
+    with pytest.raises(ValueError, match="dagger_replay.steps must be a positive integer, got 0"):
         unified.build(tiny(teacher, tmp_path, "dagger_replay.capacity=8", "dagger_replay.steps=0"))
     for it in range(2):
         with torch.no_grad():

@@ -39,7 +39,14 @@ from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.randomization import DomainRandomizer
-from legoh_rl.envs.render import DEFAULT_HEIGHT, DEFAULT_WIDTH, TrackingCamera, WorldRenderer
+from legoh_rl.envs.render import (
+    DEFAULT_HEIGHT,
+    DEFAULT_WIDTH,
+    TrackingCamera,
+    WorldRenderer,
+    add_route_markers,
+    build_render_model,
+)
 from legoh_rl.envs.resident import ResidentStep
 from legoh_rl.envs.rewards import reward_weights
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
@@ -607,8 +614,12 @@ class HikingEnv(EnvBase, StepQuantities):
         width: int = DEFAULT_WIDTH,
         height: int = DEFAULT_HEIGHT,
         camera: TrackingCamera | str | int | mujoco.MjvCamera | None = None,
+        route: bool = False,
     ) -> np.ndarray:
         """RGB frames of worlds at their current state (MuJoCo's off-screen ``mujoco.Renderer``).
+
+        Frames are drawn with :attr:`render_model` (a sky, a gridded ground under a sun casting
+        shadows, obstacles in contrasting colours); the physics is not touched.
 
         Args:
             worlds: ``None`` for every world, one world index, or a sequence (or (N,) bool mask)
@@ -619,6 +630,9 @@ class HikingEnv(EnvBase, StepQuantities):
                 down); a :class:`~legoh_rl.envs.render.TrackingCamera` to set its distance,
                 elevation, azimuth or body; a model camera's name or id (``"head_depth"`` is the
                 robot's head camera); or a ``mujoco.MjvCamera``.
+            route: draw each world's trail: P_A, the expert goals (the one being walked to in
+                yellow, those reached in grey), the waypoint and P_B
+                (:func:`~legoh_rl.envs.render.add_route_markers`).
 
         Returns:
             uint8 RGB frames: (n, height, width, 3) for ``None`` (n = N, so torchrl's
@@ -642,10 +656,29 @@ class HikingEnv(EnvBase, StepQuantities):
             if renderer is not None:
                 renderer.close()
             self.__dict__["_renderer"] = None  # a plain attribute, not an nn.Module entry
-            renderer = WorldRenderer(self.worlds, self.built.torso_body_id, height=height, width=width)
+            renderer = WorldRenderer(self.worlds, self.built.torso_body_id, height=height, width=width,
+                                     model=self.render_model)
             self.__dict__["_renderer"] = renderer
-        frames = renderer.render(ids, camera)
+        frames = renderer.render(ids, camera, decorate=self._draw_route if route else None)
         return frames[0] if single else frames
+
+    @property
+    def render_model(self) -> mujoco.MjModel:
+        """The model frames are drawn with: the physics model built again with visual-only
+        changes (:func:`~legoh_rl.envs.render.build_render_model`), made on first use and kept.
+        The physics model itself is never changed for drawing."""
+        model = self.__dict__.get("_render_model")
+        if model is None:
+            model = build_render_model(self.robot, self.trails, self.cfg.timestep, physics=self.worlds.model)
+            self.__dict__["_render_model"] = model  # a plain attribute, not an nn.Module entry
+        return model
+
+    def _draw_route(self, world: int, scene: mujoco.MjvScene) -> None:
+        """Add world ``world``'s trail markers to ``scene`` (:meth:`render` with ``route=True``)."""
+        current = self.resident.goal_idx[world].item() if self.resident is not None else self.goal_idx[world]
+        n = int(self.num_goals[world])
+        add_route_markers(scene, self.start[world], self.goals[world, :n], current=int(current),
+                          waypoint=self.waypoint[world])
 
     def _world_ids(self, worlds) -> tuple[np.ndarray, bool]:
         """(n,) world indices of ``worlds`` (see :meth:`render`) and whether it was one int."""

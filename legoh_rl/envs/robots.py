@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -376,6 +377,7 @@ def build_model(
     terrain: TerrainBuilder | None = None,
     timestep: float = 0.005,
     model_dir: str | os.PathLike | None = None,
+    visual: Callable[[mujoco.MjSpec], None] | None = None,
 ) -> BuiltModel:
     """Build the robot (upper body frozen, PD leg actuators, head camera) on a terrain.
 
@@ -384,6 +386,11 @@ def build_model(
         terrain: adds the ground (see :class:`TerrainBuilder`); ``None`` adds a flat plane.
         timestep: physics timestep, s.
         model_dir: folder with the Menagerie files; default :func:`resolve_model_dir`.
+        visual: called with the finished spec just before it is compiled, for changes that only
+            drawing sees (textures, materials, colours, lights' looks; the renderer's model,
+            :func:`legoh_rl.envs.render.build_render_model`). It must not add or remove bodies,
+            joints, lights or cameras: the renderer copies states of the physics model into the
+            model it builds.
 
     Returns:
         The :class:`BuiltModel`.
@@ -459,6 +466,8 @@ def build_model(
     else:
         terrain.add_to_spec(spec)
     spec.worldbody.add_light(pos=[0, 0, 6], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    if visual is not None:
+        visual(spec)
 
     model = spec.compile()
     return _index(model, robot, robot_body_names)

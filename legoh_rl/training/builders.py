@@ -8,17 +8,112 @@ from collections.abc import Mapping, Sequence
 import torch
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
+from legoh_rl.envs.config import PHYSICS
 from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DomainRandConfig
-from legoh_rl.envs.robots import get_robot_spec
-from legoh_rl.envs.sensors import DepthCameraConfig
+from legoh_rl.envs.rewards import REWARD_FUNCTIONS
+from legoh_rl.envs.robots import ROBOTS, get_robot_spec
+from legoh_rl.envs.sensors import DEPTH_SOURCES, DepthCameraConfig
 from legoh_rl.envs.trail_source import validate_categories
+from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
 from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
-from legoh_rl.training.config_store import RECIPE_ENV_KEYS
+from legoh_rl.training.config_checks import (
+    Choice,
+    Flag,
+    Integer,
+    ListOf,
+    Name,
+    Number,
+    check_known_keys,
+    check_settings,
+    recipe_keys,
+)
+from legoh_rl.training.config_store import RECIPE_ENV_KEYS, env_defaults
 
 __all__ = ["env_config", "make_env", "eval_env", "oracle_config", "make_oracle", "oracle_networks", "policy_meta",
-           "gait_kwargs", "require_positive", "require_count", "require_layers"]
+           "gait_kwargs", "require_positive", "require_count", "require_layers", "ENV_SETTINGS", "TRAINING_SETTINGS",
+           "check_reward_overrides", "check_recipe_settings"]
+
+#: the recipes' ``env`` section by kind (:mod:`~legoh_rl.training.config_checks`); null keeps the
+#: dataclass's default (:func:`env_config`) but for ``robot``, ``num_envs`` and the two switches
+ENV_SETTINGS = {
+    "env.robot": Choice(tuple(ROBOTS), what="robot"),
+    "env.num_envs": Integer(1),
+    "env.categories": ListOf(Choice(ALL_CATEGORIES, what="trail category"), single=True, nullable=True),
+    "env.category_weights": ListOf(Number(0, low_open=True), nullable=True),
+    "env.levels": ListOf(Integer(0, NUM_LEVELS - 1), nullable=True),
+    "env.variants": Integer(1, nullable=True),
+    "env.num_threads": Integer(1, nullable=True),
+    "env.physics": Choice(PHYSICS, nullable=True),
+    "env.resident": Flag(nullable=True),
+    "env.seed": Integer(0),
+    "env.domain_rand": Flag(),
+    "env.curriculum": Flag(),
+    "env.episode_length_s": Number(0, low_open=True, nullable=True),
+    "env.cmd_speed": Number(0, low_open=True, nullable=True),
+    "env.gait_period": Number(0, nullable=True),
+    "env.gait_stance": Number(0, 1, low_open=True, high_open=True, nullable=True),
+    "env.gait_amplitude": Number(0, nullable=True),
+    "env.gait_feedforward": Number(0, nullable=True),
+    "env.feet_edge_from_level": Integer(0, nullable=True),
+    "env.pit_depths": ListOf(Number(0, low_open=True), nullable=True),
+    "env.depth": Flag(nullable=True),
+    "env.depth_source": Choice(DEPTH_SOURCES, nullable=True),
+    "env.action_delay_after_steps": Integer(0, nullable=True),
+}
+#: the settings both training recipes (``oracle_ppo.py``, ``unified.py``) share, by kind
+#: (``checkpoint.snapshot_every`` is checked by ``runner.train`` right after ``validate``)
+TRAINING_SETTINGS = {
+    "experiment_name": Name(nullable=True),
+    "stage_name": Name(nullable=True),
+    "device": Name(nullable=True),  # which devices: resolve_device
+    "collector.steps_per_env": Integer(1),
+    "collector.total_frames": Integer(1),
+    "collector.workers": Integer(1),
+    "collector.allow_new_workers": Flag(),
+    "ppo.clip_epsilon": Number(0, 1, low_open=True),
+    "ppo.entropy_coeff": Number(0),
+    "ppo.gamma": Number(0, 1),
+    "ppo.lmbda": Number(0, 1),
+    "ppo.learning_rate": Number(0, low_open=True),
+    "ppo.desired_kl": Number(0, low_open=True),
+    "ppo.num_epochs": Integer(1),
+    "ppo.num_minibatches": Integer(1),
+    "ppo.max_grad_norm": Number(0, low_open=True),
+    "logger.backend": Choice(("wandb", "csv")),
+    "logger.online": Flag(),
+    "logger.project": Name(),
+    "logger.exp_name": Name(),
+    "logger.group": Name(nullable=True),
+    "logger.log_every": Integer(1),
+    "logger.video_every": Integer(0, nullable=True),
+    "logger.video_seconds": Number(0, low_open=True),
+    "checkpoint.dir": Name(),
+    "checkpoint.every": Integer(1),
+    "checkpoint.resume": Name(nullable=True),
+    "checkpoint.keep_curriculum": Flag(),
+    "checkpoint.overwrite": Flag(),
+    "torch_threads": Integer(1),
+}
+
+
+def check_reward_overrides(overrides) -> None:
+    """``env.reward_overrides``: null or a mapping of reward term -> weight (a finite number).
+
+    Raises:
+        ValueError: not a mapping, an unknown term (lists the known ones) or a weight that is not
+            a number; each message names ``env.reward_overrides.<term>``.
+    """
+    if overrides is None:
+        return
+    if not isinstance(overrides, Mapping):
+        raise ValueError(f"env.reward_overrides must be a mapping of reward term -> weight, got {overrides!r}")
+    for term, weight in overrides.items():
+        if term not in REWARD_FUNCTIONS:
+            raise ValueError(f"env.reward_overrides.{term}: unknown reward term; known terms: {sorted(REWARD_FUNCTIONS)}")
+        if not Number().accepts(weight):
+            raise ValueError(f"env.reward_overrides.{term} must be a finite number (the term's weight), got {weight!r}")
 
 
 def require_positive(section: str, cfg: Mapping, *names: str) -> None:
@@ -50,6 +145,29 @@ def require_layers(name: str, layers) -> None:
                          f"got {list(layers) if isinstance(layers, Sequence) else layers!r}")
 
 
+def check_recipe_settings(cfg: Mapping, config_file, settings: Mapping) -> None:
+    """A training recipe's config checked key by key, before any work: no key its yaml
+    (``config_file``, ``recipes/config/<recipe>.yaml``, with the env group) does not have
+    (``env.reward_overrides`` and ``stages`` are free mappings, checked where read), ``recipe``
+    naming this recipe (or null), every setting of :data:`ENV_SETTINGS`, :data:`TRAINING_SETTINGS`
+    and the recipe's own ``settings`` of its kind, and the reward overrides' terms and weights.
+
+    Raises:
+        ValueError: the first bad key; the message names it and its value.
+    """
+    from pathlib import Path
+
+    recipe = Path(config_file).stem
+    known = recipe_keys(config_file, {"env": env_defaults()})
+    check_known_keys(cfg, known, open_sections=("env.reward_overrides", "stages"), name=f"{recipe}'s config")
+    check_settings(cfg, {"recipe": Choice((recipe,), nullable=True), **ENV_SETTINGS, **TRAINING_SETTINGS, **settings})
+    check_reward_overrides(cfg["env"].get("reward_overrides"))
+    from legoh_rl.training import ray_collection  # (it imports this module)
+
+    ray_collection.collector_backend(cfg["collector"])
+    ray_collection.ray_options(cfg["collector"].get("ray"))  # checked whatever the backend: a bad value is one
+
+
 def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
     """A :class:`HikingEnvConfig` from a recipe's ``env`` section (validated, nothing built).
 
@@ -72,6 +190,7 @@ def env_config(cfg: Mapping, mode: str, **overrides) -> HikingEnvConfig:
         raise ValueError(f"env.{unknown[0]} is not a setting of the recipes' env section (unknown: {unknown}); "
                          f"the settings are {list(RECIPE_ENV_KEYS)}")
     get_robot_spec(cfg["robot"])  # unknown robot: clear error before any work
+    check_reward_overrides(cfg.get("reward_overrides"))
     defaults = {f.name: f.default for f in dataclasses.fields(HikingEnvConfig) if f.default is not dataclasses.MISSING}
 
     def value(name: str, cast):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from legoh_rl.envs.metrics import METRIC_NAMES
+from legoh_rl.envs.render import TrackingCamera
 from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
 
 __all__ = [
@@ -35,9 +37,18 @@ __all__ = [
     "write_csv",
     "write_episodes",
     "plot_trajectories",
+    "trajectory_figure",
+    "category_worlds",
     "render_video",
+    "render_videos",
+    "VIDEO_CAMERA",
+    "release_memory",
     "METRIC_LABELS",
 ]
+
+#: the videos' camera: 5 m from the torso, 28 degrees down, behind and to the right of a robot
+#: walking along +x (as the trails run), looking along its route
+VIDEO_CAMERA = TrackingCamera(distance=5.0, elevation=-28.0, azimuth=30.0)
 
 METRIC_LABELS = {
     "success": "Success Rate (%)",
@@ -73,7 +84,8 @@ class EvalProtocol:
         if self.robots_per_cell < 1 or self.runs < 1:
             raise ValueError(f"robots_per_cell and runs must be >= 1, got {self.robots_per_cell}, {self.runs}")
         if not self.categories or not self.levels:
-            raise ValueError("the protocol needs at least one category and one level")
+            raise ValueError("the protocol needs at least one category and one level, got "
+                             f"categories={list(self.categories)}, levels={list(self.levels)}")
         for name, values in (("categories", list(self.categories)), ("levels", list(self.levels))):
             repeated = sorted({v for v in values if values.count(v) > 1}, key=str)
             if repeated:
@@ -109,6 +121,26 @@ class EvalResult:
 
 def _base_env(env):
     return getattr(env, "base_env", env)
+
+
+def release_memory() -> None:
+    """Free the memory of the objects just dropped, now: before the next eval env is built.
+
+    Runs the garbage collector (an env's MuJoCo worlds, trails, depth camera and tensors sit in
+    reference cycles), then hands the freed heap back to the OS (glibc's ``malloc_trim``; elsewhere
+    a no-op): without it, the next env's build does not fit in the holes the last one left, and an
+    evaluation's peak memory grows with its number of trail grids (``BENCHMARKS.md``, "Evaluation
+    memory"). Close the env (its renderer's OpenGL context) and drop every reference to it (and to
+    a policy or result that holds it) before calling this.
+    """
+    import ctypes
+    import gc
+
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc: the allocator keeps what it keeps
+        pass
 
 
 def run_protocol(env, policy, protocol: EvalProtocol, progress: bool = False) -> EvalResult:
@@ -300,7 +332,22 @@ def write_csv(rows: dict[str, dict[str, tuple[float, float]]], path: str | Path)
 
 
 def plot_trajectories(env, result: EvalResult, path: str | Path, max_tiles: int = 4) -> Path:
-    """Torso paths over their trail, coloured by time (one panel per trail tile)."""
+    """Torso paths over their trail, coloured by time (one panel per trail tile), saved as a PNG
+    (:func:`trajectory_figure`)."""
+    import matplotlib.pyplot as plt
+
+    fig = trajectory_figure(env, result, max_tiles)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
+
+
+def trajectory_figure(env, result: EvalResult, max_tiles: int = 4):
+    """The matplotlib figure of :func:`plot_trajectories`: one panel per trail tile (its height map
+    in grey, P_A, the expert goals, P_B, and the recorded torso paths coloured by time), laid out
+    by matplotlib's constrained layout so no title runs into the panel above."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -312,7 +359,7 @@ def plot_trajectories(env, result: EvalResult, path: str | Path, max_tiles: int 
     for w, t in result.tiles.items():
         by_tile.setdefault(t, []).append(w)
     tiles = list(by_tile)[:max_tiles]
-    fig, axes = plt.subplots(len(tiles), 1, figsize=(8, 2.6 * len(tiles)), squeeze=False)
+    fig, axes = plt.subplots(len(tiles), 1, figsize=(6.5, 2.3 * len(tiles) + 0.5), squeeze=False, layout="constrained")
     tmax = max((ts[-1] for ts in result.times.values() if ts.size), default=1.0)
     for ax, t in zip(axes[:, 0], tiles, strict=False):
         start, end = tr.tile_start[t], tr.tile_end[t]
@@ -327,63 +374,141 @@ def plot_trajectories(env, result: EvalResult, path: str | Path, max_tiles: int 
         ax.plot(*end[:2], "r*", ms=10, label="P_B")
         for w in by_tile[t]:
             xy, ts = result.trajectories[w], result.times[w]
-            sc = ax.scatter(xy[:, 0], xy[:, 1], c=ts, cmap="viridis", s=3, vmin=0, vmax=tmax)
-        ax.set_title(f"{tr.categories[tr.tile_category[t]]}, level {tr.tile_level[t]}")
+            ax.scatter(xy[:, 0], xy[:, 1], c=ts, cmap="viridis", s=3, vmin=0, vmax=tmax)
+        ax.set_title(f"{tr.categories[tr.tile_category[t]]}, level {tr.tile_level[t]}", fontsize=10)
         ax.set_xlim(x0, x1)
         ax.set_ylim(y0, y1)
-    fig.colorbar(sc, ax=axes[:, 0].tolist(), label="time (s)")
+        ax.set_ylabel("y (m)")
+    axes[-1, 0].set_xlabel("x (m)")
+    time_scale = matplotlib.cm.ScalarMappable(norm=matplotlib.colors.Normalize(0.0, tmax), cmap="viridis")
+    fig.colorbar(time_scale, ax=axes[:, 0].tolist(), label="time (s)")
     axes[0, 0].legend(loc="upper left", fontsize=7)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    return fig
 
 
-def render_video(env, policy, path: str | Path, worlds: int = 4, seconds: float = 6.0,
-                 size: tuple[int, int] = (240, 320), fps: int = 25) -> Path | None:
-    """A short video of the first ``worlds`` robots (tiled two per row), each followed by a
-    camera tracking its torso (:meth:`~legoh_rl.envs.HikingEnv.render`).
+def category_worlds(protocol: EvalProtocol, category: str, count: int = 4) -> list[int]:
+    """Up to ``count`` worlds of ``category`` in :func:`run_protocol`'s layout, one per level first
+    (the first robot of each level's cell, levels in the protocol's order), then the second robot
+    of each, and so on: a per-category clip shows the category's levels side by side.
+
+    Raises:
+        ValueError: ``category`` is not in the protocol, or ``count`` < 1.
+    """
+    if category not in protocol.categories:
+        raise ValueError(f"category {category!r} is not in the protocol's categories {list(protocol.categories)}")
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    c, n_levels, rpc = protocol.categories.index(category), len(protocol.levels), protocol.robots_per_cell
+    order = [(c * n_levels + lv) * rpc + r for r in range(rpc) for lv in range(n_levels)]
+    return order[:count]
+
+
+def render_video(env, policy, path: str | Path, worlds: int | Sequence[int] = 4, seconds: float = 6.0,
+                 size: tuple[int, int] = (240, 320), fps: int = 25, progress: bool = False) -> Path | None:
+    """A short video of a few robots (tiled two per row): :func:`render_videos` with one clip.
 
     Args:
-        env: the eval env (a HikingEnv, or a TransformedEnv around one), its worlds on their cells.
-        policy: the deterministic policy, a TensorDictModule writing ``action``.
+        env, policy: as :func:`render_videos`.
         path: the .mp4 to write.
-        worlds: how many worlds (from world 0); ``size``: (height, width) of each tile, pixels.
-        seconds: simulated seconds; ``fps``: frames per second of the video.
+        worlds: how many worlds from world 0, or the world indices.
+        seconds, size, fps, progress: as :func:`render_videos`.
 
     Returns:
         the path, or None with a warning when rendering is unavailable (no OpenGL context: set
         ``MUJOCO_GL=egl`` or ``osmesa`` without a display), so an evaluation never fails on it.
     """
+    if not seconds > 0.0:
+        raise ValueError(f"video seconds must be positive, got {seconds}")
+    if isinstance(worlds, int | np.integer):
+        worlds = list(range(min(int(worlds), _base_env(env).cfg.num_envs)))
+    written = render_videos(env, policy, {path: worlds}, seconds=seconds, size=size, fps=fps, progress=progress)
+    return None if written is None else written[Path(path)]
+
+
+def render_videos(env, policy, clips: Mapping[str | Path, Sequence[int]], seconds: float = 6.0,
+                  size: tuple[int, int] = (240, 320), fps: int = 25, camera=None, route: bool = True,
+                  depth_inset: bool = True, progress: bool = True) -> dict[Path, Path] | None:
+    """Videos of chosen worlds from one rollout of ``policy``: each clip tiles its worlds two per
+    row, every world followed by a camera behind its robot (``camera``, default
+    :data:`VIDEO_CAMERA`).
+
+    The frames show the trail (sky, gridded ground in sunlight with shadows, obstacles in
+    contrasting colours), the route and goals of each robot (``route``: P_A, the expert goals,
+    the goal being walked to in yellow, the waypoint, P_B) and, for a policy that sees depth
+    (a student), its latest depth image in the top-right corner (``depth_inset``; near is
+    bright). Each world is drawn once per frame, whatever clips show it.
+
+    Args:
+        env: the eval env (a HikingEnv, or a TransformedEnv around one), its worlds on their cells.
+        policy: the deterministic policy, a TensorDictModule writing ``action``.
+        clips: .mp4 path -> world indices shown in it (1 to 4 look best).
+        seconds: simulated seconds; ``fps``: frames per second (a frame every
+            ``round(1 / (fps * dt))`` control steps).
+        size: (height, width) of each world's tile, pixels.
+        camera: anything :meth:`~legoh_rl.envs.HikingEnv.render` takes; None is :data:`VIDEO_CAMERA`.
+        route: draw the routes and goals; ``depth_inset``: the student's depth image inset.
+        progress: a progress bar of the frames drawn (tqdm, on stderr).
+
+    Returns:
+        {path: path} of the written clips, or None with a warning when rendering is unavailable.
+    """
     import warnings
 
-    from legoh_rl.envs.render import RenderingUnavailableError, tile_frames
+    from legoh_rl.envs.render import RenderingUnavailableError, inset_image, tile_frames
 
     if not seconds > 0.0:
         raise ValueError(f"video seconds must be positive, got {seconds}")
+    base = _base_env(env)
+    n = base.cfg.num_envs
+    clips = {Path(p): np.asarray(list(ws), dtype=np.int64).reshape(-1) for p, ws in clips.items()}
+    if not clips:
+        raise ValueError("no clips to render")
+    for p, ws in clips.items():
+        if ws.size == 0 or ws.min() < 0 or ws.max() >= n:
+            raise ValueError(f"clip {p} must show worlds in [0, {n}), got {ws.tolist()}")
+    shown = np.unique(np.concatenate(list(clips.values())))
+    row = {int(w): i for i, w in enumerate(shown)}
+    every = max(1, int(round(1.0 / (fps * base.dt))))
+    steps = int(seconds / base.dt)
+    num_frames = len(range(0, steps, every))
+    if num_frames == 0:  # shorter than one frame
+        warnings.warn(f"video skipped: {seconds} s is shorter than one frame at {fps} fps", stacklevel=2)
+        return None
     import imageio.v2 as imageio
 
-    base = _base_env(env)
-    ids = list(range(min(worlds, base.cfg.num_envs)))
-    every = max(1, int(round(1.0 / (fps * base.dt))))
-    frames = []
+    cam = VIDEO_CAMERA if camera is None else camera
+    writers: dict[Path, object] = {}
+    bar = tqdm(total=num_frames, unit="frames", desc=f"video ({shown.size} robots)", disable=not progress)
+    done = False
     td = env.reset()
     try:
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
-            for step in range(int(seconds / base.dt)):
+            for step in range(steps):
                 td = policy(td)
                 _, td = env.step_and_maybe_reset(td)
-                if step % every == 0:
-                    tiles = base.render(worlds=ids, width=size[1], height=size[0])
-                    frames.append(tile_frames(tiles, cols=2))
+                if step % every:
+                    continue
+                tiles = base.render(worlds=shown, width=size[1], height=size[0], camera=cam, route=route)
+                depth = td.get("depth", None) if depth_inset else None
+                if depth is not None:
+                    depth = depth.detach().cpu().numpy()
+                    for w, i in row.items():
+                        inset_image(tiles[i], depth[w])
+                if not writers:
+                    for p in clips:
+                        p.parent.mkdir(parents=True, exist_ok=True)
+                        writers[p] = imageio.get_writer(p, fps=fps, macro_block_size=1)
+                for p, ws in clips.items():
+                    writers[p].append_data(tile_frames(tiles[[row[int(w)] for w in ws]], cols=2))
+                bar.update(1)
+        done = True
     except RenderingUnavailableError as err:
         warnings.warn(f"video skipped: {err}", stacklevel=2)
         return None
-    if not frames:  # shorter than one frame
-        warnings.warn(f"video skipped: {seconds} s is shorter than one frame at {fps} fps", stacklevel=2)
-        return None
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    imageio.mimsave(path, frames, fps=fps, macro_block_size=1)
-    return path
+    finally:
+        bar.close()
+        for p, writer in writers.items():
+            writer.close()
+            if not done:
+                p.unlink(missing_ok=True)  # no half-written clip
+    return {p: p for p in clips}

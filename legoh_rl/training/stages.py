@@ -136,7 +136,7 @@ def stage_config(cfg: DictConfig, stages: list[Stage], index: int) -> DictConfig
         out.checkpoint.resume = resume
         out.checkpoint.keep_curriculum = stage.keep_curriculum
         out.checkpoint.overwrite = False
-        if index > 0:
+        if index > 0 and "init" in out.checkpoint:  # (oracle_ppo's key)
             out.checkpoint.init = None  # later stages resume; only the first may start from a policy
     return out
 
@@ -194,7 +194,8 @@ def run_experiment(cfg: DictConfig, train: Callable[[DictConfig], dict], recipe:
     """
     meant = cfg.get("recipe")
     if meant is not None and meant != recipe:
-        raise ValueError(f"experiment {cfg.get('experiment_name')!r} is for recipes/{meant}.py, not recipes/{recipe}.py")
+        raise ValueError(f"recipe={meant!r}: experiment {cfg.get('experiment_name')!r} is for recipes/{meant}.py, "
+                         f"not recipes/{recipe}.py")
     if parse_stages(cfg.get("stages")):
         return run_stages(cfg, train)
     return train(cfg)
