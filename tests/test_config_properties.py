@@ -377,11 +377,6 @@ def folders(tmp_path_factory):
     return tmp_path_factory.mktemp("config_properties")
 
 
-def play_recipe() -> bool:
-    """Whether a ``play`` recipe with a config and a ``validate`` exists (another change adds it)."""
-    return (CONFIG / "play.yaml").is_file() and "def validate" in (ROOT / "recipes" / "play.py").read_text()
-
-
 @pytest.mark.parametrize("name", ["oracle_ppo", "unified", "evaluate"])
 def test_every_bad_value_is_refused_naming_its_key_before_any_work(name, folders):
     out = folders / name / "never"
@@ -417,7 +412,3 @@ def test_every_bad_value_is_refused_naming_its_key_before_any_work(name, folders
         every_key()
     COUNTS[name, "keys"] = len(keys)
 
-
-@pytest.mark.skipif(not play_recipe(), reason="no recipes/play.py with a validate(cfg) and recipes/config/play.yaml")
-def test_play_has_kinds_here():
-    pytest.fail("recipes/play.py has a validate(cfg): add its settings to KINDS, a tiny() config and run() for it")
