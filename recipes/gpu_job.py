@@ -144,6 +144,9 @@ def unpack(files: Path, run_dir: Path) -> Path:
     if hashlib.sha256(data).hexdigest() != manifest["last.pt"]["sha256"]:
         raise ValueError(f"{files}: the joined last.pt does not match the manifest's SHA-256 (a damaged part)")
     for name, entry in manifest["files"].items():
+        target = (run_dir / entry["to"]).resolve()
+        if Path(name).name != name or not target.is_relative_to(run_dir.resolve()):
+            raise ValueError(f"{manifest_path}: entry {name!r} -> {entry['to']!r} leaves the run folder {run_dir}")
         if sha256(files / name) != entry["sha256"]:
             raise ValueError(f"{files / name}: SHA-256 differs from the manifest's")
     run_dir.mkdir(parents=True, exist_ok=True)

@@ -38,6 +38,14 @@ def test_pack_splits_under_the_file_limit_and_unpack_joins_byte_for_byte(tmp_pat
     last = gpu_job.unpack(tmp_path / "out", tmp_path / "here")
     assert last.read_bytes() == data and (tmp_path / "here" / "last.pt.before-unpack").read_bytes() == b"older"
     assert (tmp_path / "here" / "snapshots" / "frames000000200.pt").read_bytes() == b"snap200"
+    good = (tmp_path / "out" / "manifest.json").read_text()
+    # a manifest that would write outside the run folder is refused
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    manifest["files"]["metrics.jsonl"]["to"] = "../../escaped.jsonl"
+    (tmp_path / "out" / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match="leaves the run folder"):
+        gpu_job.unpack(tmp_path / "out", tmp_path / "again")
+    (tmp_path / "out" / "manifest.json").write_text(good)
     # a damaged or missing part is refused by name
     (tmp_path / "out" / "last.pt.part01").write_bytes(b"\0" * 1000)
     with pytest.raises(ValueError, match="does not match the manifest's SHA-256"):
