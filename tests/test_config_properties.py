@@ -40,9 +40,10 @@ from legoh_rl.training.stages import run_experiment  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "recipes" / "config"
 sys.path.insert(0, str(ROOT / "recipes"))
-import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
 import unified  # noqa: E402
+
+from legoh_rl.training import eval_run  # noqa: E402
 
 register_configs()
 
@@ -304,7 +305,7 @@ def tiny(name: str, out: Path) -> DictConfig:
 def run(name: str, cfg: DictConfig) -> None:
     """Run recipe ``name`` on ``cfg`` as its command line does."""
     if name == "evaluate":
-        evaluate_recipe.evaluate(cfg)
+        eval_run.evaluate(cfg)
     else:
         run_experiment(cfg, {"oracle_ppo": oracle_ppo.train, "unified": unified.train}[name], name)
 
