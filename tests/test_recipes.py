@@ -1,4 +1,8 @@
-"""Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs."""
+"""Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs.
+
+Why one file of ~700 lines: each test runs a recipe as its command line does, on the same tiny
+configs and helpers; the recipes with many tests of their own have their own files
+(``test_unified.py``, ``test_paper_tables.py``, ``test_eval_folder.py``, ...)."""
 
 import json
 import math
