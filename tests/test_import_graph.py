@@ -1,5 +1,6 @@
 """The import structure of legoh_rl and the recipes, read from the source (nothing is imported):
-no import cycle, counting the imports inside functions too; the layers of docs/architecture.md
+no import cycle, counting the imports inside functions too (nor between the C kernels of
+legoh_rl/envs/native/, by the functions one calls of another); the layers of docs/architecture.md
 (envs/, transforms/ and modules/ import nothing of each other, objectives/ only the masked VAE
 network it trains, none of them the packages that wire them together); no recipe script imports
 a sibling script."""
@@ -8,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import functools
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -177,3 +179,34 @@ def test_no_recipe_imports_a_sibling_script():
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
             bad += [f"{name}.py imports {n}" for n in names if n.split(".")[0] in scripts]
     assert not bad, bad
+
+
+NATIVE = ROOT / PACKAGE / "envs" / "native"
+#: a C function with external linkage defined at the start of a line (``int lh_march(...) {``, its
+#: return type on the line before too)
+_C_DEFINITION = re.compile(r"^(?!static\b)[A-Za-z_][\w \t\*\n]*?\b(lh_\w+)\s*\([^;]*?\)\s*\{", re.M | re.S)
+_C_CALL = re.compile(r"\b(lh_\w+)\s*\(")
+
+
+def c_call_graph(folder: Path = NATIVE) -> dict[str, set[str]]:
+    """{C source: the other sources whose ``lh_*`` functions it calls} over ``folder``'s ``.c``
+    files (the kernels' exported functions all start with ``lh_``)."""
+    texts = {p.name: p.read_text() for p in sorted(folder.glob("*.c"))}
+    defined = {name: src for src, text in texts.items() for name in _C_DEFINITION.findall(text)}
+    return {src: {defined[n] for n in _C_CALL.findall(text) if n in defined and defined[n] != src}
+            for src, text in texts.items()}
+
+
+def test_the_c_reader_sees_definitions_and_calls(tmp_path):
+    (tmp_path / "a.c").write_text("static int helper(void) { return lh_b(1); }\nint lh_a(int x) {\n    return x;\n}\n")
+    (tmp_path / "b.c").write_text("int\nlh_b(int x) { return lh_a(x); }\n")
+    assert c_call_graph(tmp_path) == {"a.c": {"b.c"}, "b.c": {"a.c"}}
+    assert cycles(c_call_graph(tmp_path)) == [frozenset({"a.c", "b.c"})]
+
+
+def test_no_call_cycle_between_the_c_kernels():
+    """The native kernels call each other one way: the march and the camera (height_march.c) call
+    the obstacle rays (obstacle_cast.c), and both the threads of parallel.c."""
+    graph = c_call_graph()
+    assert graph["height_march.c"] == {"obstacle_cast.c", "parallel.c"}
+    assert not cycles(graph), graph
