@@ -357,7 +357,7 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     assert "Trail seeds: 9101" in text and "--trail-seeds 9101" in text
     assert f"not trained: `{ck / 'student_h1.pt'}`" in text
     assert "| Oracle | ours | " in capsys.readouterr().out
-    record = json.loads((out / "evals" / "oracle_h1" / pt.RECORD_NAME).read_text())
+    record = json.loads((out / "evals" / "oracle_h1" / eval_run.RECORD_NAME).read_text())
     assert record["checkpoint_sha256"] == hashlib.sha256((ROOT / "checkpoints" / "oracle_h1.pt").read_bytes()).hexdigest()
     assert record["config"]["trail_seeds"] == [9101] and "output_dir" not in record["config"]
     # the same command again reads the evaluation back; --fresh or another protocol evaluates again
@@ -384,7 +384,7 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
             "categories=[randommix]", "levels=[0]", "video=false", "num_threads=1", "device=cpu",
             f"output_dir={alone / 'oracle'}", "logger.backend=csv"])
     eval_run.evaluate(cfg)  # the real evaluate.py, as its command line runs it
-    assert json.loads((alone / "oracle" / pt.RECORD_NAME).read_text())["checkpoint_sha256"] == record["checkpoint_sha256"]
+    assert json.loads((alone / "oracle" / eval_run.RECORD_NAME).read_text())["checkpoint_sha256"] == record["checkpoint_sha256"]
     monkeypatch.setattr(eval_run, "evaluate", fake_evaluate)
     fresh_out = ["--out", str(tmp_path / "tables2")]
     assert recipe.main(argv + fresh_out + ["--reuse-from", str(alone)]) == 0 and calls == [1, 2]
@@ -396,7 +396,7 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     dr_out = tmp_path / "tables_dr"
     assert recipe.main(argv + ["--out", str(dr_out), "--reuse-from", str(alone), str(out), "--domain-rand"]) == 0
     assert len(dr_cfgs) == 1 and dr_cfgs[0].domain_rand is True
-    assert json.loads((dr_out / "evals" / "oracle_h1" / pt.RECORD_NAME).read_text())["config"]["domain_rand"] is True
+    assert json.loads((dr_out / "evals" / "oracle_h1" / eval_run.RECORD_NAME).read_text())["config"]["domain_rand"] is True
     assert "under the training's domain randomisation" in (dr_out / "tables.md").read_text()
 
 
@@ -425,10 +425,10 @@ def test_an_archive_keeps_each_evaluation_so_a_new_checkout_refills_without_eval
     assert [re.fullmatch(r"(oracle_g1_trails|student_h1)-[0-9a-f]{12}", k.name).group(1) for k in kept] == \
         ["oracle_g1_trails", "student_h1"]
     for k in kept:
-        assert {f.name for f in k.iterdir()} == {"table.csv", pt.RECORD_NAME}
+        assert {f.name for f in k.iterdir()} == {"table.csv", eval_run.RECORD_NAME}
         name = k.name.rsplit("-", 1)[0]
-        assert json.loads((k / pt.RECORD_NAME).read_text()) == \
-            json.loads((tmp_path / "a" / "evals" / name / pt.RECORD_NAME).read_text())
+        assert json.loads((k / eval_run.RECORD_NAME).read_text()) == \
+            json.loads((tmp_path / "a" / "evals" / name / eval_run.RECORD_NAME).read_text())
     student = {(r["row"], r["source"]): r for r in read_csv(tmp_path / "a" / "g1.csv")}[("h1_lego_h", "ours")]
     assert float(student["success_mean"]) == 31.0 and student["time_to_reach_mean"] == "nan"  # NaN survives
     # a fresh --out (as in a new checkout): every figure read back from the archive, none evaluated

@@ -23,7 +23,6 @@ six metrics) with the paper's row under it. The modules, in the order the comman
 """
 
 from legoh_rl.paper_tables.evaluations import (
-    RECORD_NAME,
     RowResult,
     Settings,
     archive_evaluation,
@@ -67,7 +66,7 @@ __all__ = [
     "METRICS", "TABLES", "PaperRow", "PaperTable", "Value", "check_unique", "table_names",
     "ROWS", "RowSpec", "CheckpointInfo", "Resolution", "checkpoint_info", "describe", "mismatch", "read_info",
     "resolve_row", "across_seeds",
-    "RECORD_NAME", "Settings", "RowResult", "find_evaluation", "read_table_csv", "archive_evaluation",
+    "Settings", "RowResult", "find_evaluation", "read_table_csv", "archive_evaluation",
     "evaluate_checkpoint", "run_rows",
     "CSV_FIELDS", "fmt", "markdown", "csv_rows", "write_tables", "fill_markers", "into_files",
 ]

@@ -23,7 +23,7 @@ from legoh_rl.paper_tables.paper import Value
 from legoh_rl.paper_tables.rows import ROWS, CheckpointInfo, across_seeds, read_info, resolve_row
 from legoh_rl.training import eval_run
 
-__all__ = ["Settings", "RECORD_NAME", "find_evaluation", "read_table_csv", "archive_evaluation",
+__all__ = ["Settings", "find_evaluation", "read_table_csv", "archive_evaluation",
            "evaluate_checkpoint", "RowResult", "run_rows"]
 
 
@@ -96,15 +96,12 @@ class Settings:
                 + (", under the training's domain randomisation" if self.domain_rand else ""))
 
 
-#: the file an evaluation leaves beside its tables (:func:`~legoh_rl.training.eval_run.evaluation_record`)
-RECORD_NAME = eval_run.RECORD_NAME
-
-
 def find_evaluation(record: dict, folders: Sequence[Path]) -> Path | None:
-    """A folder holding an evaluation made with ``record`` (its :data:`RECORD_NAME` equal to it,
+    """A folder holding an evaluation made with ``record`` (its record file,
+    :data:`~legoh_rl.training.eval_run.RECORD_NAME`, equal to it,
     beside its ``table.csv``): each of ``folders`` or one of their subfolders; None if none."""
     for folder in folders:
-        for stamp in [Path(folder) / RECORD_NAME, *sorted(Path(folder).glob(f"*/{RECORD_NAME}"))]:
+        for stamp in [Path(folder) / eval_run.RECORD_NAME, *sorted(Path(folder).glob(f"*/{eval_run.RECORD_NAME}"))]:
             if stamp.is_file() and (stamp.parent / "table.csv").is_file() and json.loads(stamp.read_text()) == record:
                 return stamp.parent
     return None
@@ -120,7 +117,8 @@ def read_table_csv(path: Path) -> dict[str, dict[str, Value]]:
 
 
 def archive_evaluation(found: Path, record: dict, archive: Path, name: str) -> Path:
-    """Keep an evaluation's figures and what they depend on (its :data:`RECORD_NAME` and
+    """Keep an evaluation's figures and what they depend on (its record,
+    :data:`~legoh_rl.training.eval_run.RECORD_NAME`, and
     ``table.csv``, a few kB) in ``archive/<name>-<record digest>/``, a folder that can be committed
     so a fresh checkout refills the tables without evaluating again; returns that folder. The digest
     (12 hex digits of the record's SHA-256) keeps the same checkpoint's evaluations on other
@@ -130,7 +128,7 @@ def archive_evaluation(found: Path, record: dict, archive: Path, name: str) -> P
     if kept.resolve() != Path(found).resolve():
         kept.mkdir(parents=True, exist_ok=True)
         (kept / "table.csv").write_bytes((Path(found) / "table.csv").read_bytes())
-        (kept / RECORD_NAME).write_text(json.dumps(record, indent=1) + "\n")  # last: only a complete copy matches
+        (kept / eval_run.RECORD_NAME).write_text(json.dumps(record, indent=1) + "\n")  # last: only a complete copy matches
     return kept
 
 
@@ -139,7 +137,7 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse:
     """:func:`legoh_rl.training.eval_run.evaluate` on one checkpoint, its config composed from
     ``evaluate.yaml`` with ``settings``.
 
-    Each evaluation leaves :data:`RECORD_NAME` beside its ``table.csv``
+    Each evaluation leaves :data:`~legoh_rl.training.eval_run.RECORD_NAME` beside its ``table.csv``
     (``eval_run.evaluation_record``); with ``reuse`` a folder whose record matches (the same
     checkpoint file and protocol), ``output_dir`` or one found in ``reuse_from`` (an
     ``evaluate.py`` run's output folder, or a folder of them), is read back instead of evaluated
@@ -154,7 +152,7 @@ def evaluate_checkpoint(path: Path, settings: Settings, output_dir: Path, reuse:
         cfg = compose(config_name="evaluate")
     cfg = OmegaConf.merge(cfg, settings.overrides(path, output_dir))
     record = eval_run.evaluation_record(cfg)
-    stamp = output_dir / RECORD_NAME
+    stamp = output_dir / eval_run.RECORD_NAME
     searched = [output_dir, *([archive] if archive is not None else []), *reuse_from]
     found = find_evaluation(record, searched) if reuse else None
     if found is not None:
