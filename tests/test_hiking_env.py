@@ -113,7 +113,7 @@ def test_partial_reset_refreshes_only_the_reset_rows_and_they_match_a_full_recom
     stepped = act(env, 0.5 * torch.randn(4, env.A))
     mask = torch.tensor([[False], [True], [False], [True]])
     td = env._reset(TensorDict({"_reset": mask}, batch_size=[4]))
-    full = env._refresh_observations(np.arange(env.cfg.num_envs))
+    full = env.step_state._refresh_observations(np.arange(env.cfg.num_envs))
     for key, value in full.items():
         assert np.allclose(td[key].numpy(), np.asarray(value, dtype=np.float32)), key
     assert td["perception_tick"].reshape(-1).tolist() == [False, True, False, True]
