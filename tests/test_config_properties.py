@@ -34,6 +34,7 @@ from hypothesis import strategies as st  # noqa: E402
 
 from legoh_rl.envs.hiking import HikingEnv  # noqa: E402
 from legoh_rl.envs.rewards import REWARD_FUNCTIONS  # noqa: E402
+from legoh_rl.modules.oracle import ORACLE_NETWORKS  # noqa: E402
 from legoh_rl.training.config_store import register_configs  # noqa: E402
 from legoh_rl.training.stages import run_experiment  # noqa: E402
 
@@ -205,6 +206,7 @@ KINDS = {
         "recipe": bad_choice(("oracle_ppo",), null=True),
         "model.init_std": bad_num(0, low_open=True),
         "model.max_std": bad_num(0, low_open=True, null=True),
+        "model.network": bad_choice(tuple(ORACLE_NETWORKS)),
         "model.layers": bad_list(st.integers(1, 64), bad_int(1), null=True),
         "checkpoint.init": bad_name(null=True),
         "feedforward_anneal": bad_list(st.integers(0, 10), bad_int(0), null=True),

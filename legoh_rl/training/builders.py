@@ -17,7 +17,7 @@ from legoh_rl.envs.sensors import DEPTH_SOURCES, DepthCameraConfig
 from legoh_rl.envs.trail_source import validate_categories
 from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
 from legoh_rl.modules.configs import OracleConfig
-from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
+from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic, make_oracle_networks
 from legoh_rl.training.config_checks import (
     Choice,
     Flag,
@@ -249,7 +249,7 @@ def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, d
 
 def oracle_networks(state: dict) -> OracleNetworks:
     """The trained networks of an oracle checkpoint (its ``oracle_config`` and ``networks``)."""
-    networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
+    networks = make_oracle_networks(OracleConfig(**state["oracle_config"]))
     networks.load_state_dict(state["networks"])
     return networks
 
@@ -273,10 +273,10 @@ def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...]
 
 
 def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None,
-                max_std: float | None = None):
-    """``(networks, actor, critic)`` of the oracle sized for ``env``."""
-    ocfg = oracle_config(env, init_std, layers, max_std)
-    networks = OracleNetworks(ocfg)
+                max_std: float | None = None, network: str = "mlp"):
+    """``(networks, actor, critic)`` of the oracle sized for ``env``; ``network``: a name in ``ORACLE_NETWORKS``."""
+    ocfg = dataclasses.replace(oracle_config(env, init_std, layers, max_std), network=network)
+    networks = make_oracle_networks(ocfg)
     actor, critic = make_oracle_actor_critic(ocfg, networks=networks)
     return networks, actor, critic
 
