@@ -474,8 +474,8 @@ def test_gait_clock_in_proprio_and_contact_reward():
     np.testing.assert_allclose(env.gait_phase(), [0.0, phase])
     # no term reads the swing reference here, so the reward state carries none
     state = env.read_state()
-    state["goal_dirs_w"] = env._goal_dirs(state["pos"])
-    assert env._reward_state(state).gait_ref_q is None
+    state["goal_dirs_w"] = env.step_state._goal_dirs(state["pos"])
+    assert env.step_state._reward_state(state).gait_ref_q is None
 
 
 def test_gait_options_refused_when_bad():

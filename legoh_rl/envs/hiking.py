@@ -15,6 +15,10 @@ Keys (docs/observations.md has every layout and scale; docs/keys.md the contract
   ``category`` of the trail;
 * ``("info", "diverged")``: the world's physics diverged and was reset (the episode is
   truncated); ``("info", "bad_action")``: the action held NaN/inf and was replaced by zeros.
+
+Over 500 lines because it is the env's whole public face in one class (specs, step and reset,
+the evaluation protocol's pins, rendering, checkpoint state); the step's per-world state and
+arithmetic live in :mod:`legoh_rl.envs.step_state` and :mod:`legoh_rl.envs.step_quantities`.
 """
 
 from __future__ import annotations
