@@ -10,6 +10,7 @@ import torch
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.envs.body_state import FLAG_FIELDS, FLOAT_FIELDS, BodyStateReader
+from legoh_rl.envs.device_terrain import DeviceTerrain
 from legoh_rl.envs.native.build import load_library
 from legoh_rl.envs.trail_source import trails_for
 
@@ -39,12 +40,12 @@ def assert_same(a: dict, b: dict) -> None:
 @needs_native
 @pytest.mark.parametrize("ids", [None, np.array([5, 0, 7]), np.array([], dtype=np.int64)])
 def test_native_matches_numpy(env, ids):
-    assert env.body.native
-    native, ref = env.body.read(ids, env.end), env.body.read_numpy(ids, env.end)
+    assert env.step_state.body.native
+    native, ref = env.step_state.body.read(ids, env.end), env.step_state.body.read_python(ids, env.end)
     assert set(native) == {name for name, _ in FLOAT_FIELDS + FLAG_FIELDS}
     assert_same(native, ref)
     n = 8 if ids is None else ids.size
-    assert native["rot"].shape == (n, 3, 3) and native["pen_force"].shape == (n, env.body.P, 3)
+    assert native["rot"].shape == (n, 3, 3) and native["pen_force"].shape == (n, env.step_state.body.P, 3)
     assert native["contact"].dtype == bool
 
 
@@ -81,7 +82,7 @@ def test_hand_made_state(env):
     end = np.zeros((2, 3))
     end[r] = 13.3, 6.1, 0.0
     assert reader.native
-    for s in (reader.read(np.array([r]), end), reader.read_numpy(np.array([r]), end)):
+    for s in (reader.read(np.array([r]), end), reader.read_python(np.array([r]), end)):
         np.testing.assert_allclose(s["yaw"], [yaw], atol=1e-12)
         np.testing.assert_allclose(s["roll"], [0.0], atol=1e-12)
         np.testing.assert_allclose(s["pitch"], [0.0], atol=1e-12)
@@ -105,13 +106,13 @@ def test_hand_made_state(env):
 
 @needs_native
 def test_outputs_are_fresh_and_bad_rows_refused(env):
-    s = env.body.read(None, env.end)
+    s = env.step_state.body.read(None, env.end)
     s["pos"][:] = 1e9
-    assert not np.allclose(env.body.read(None, env.end)["pos"], 1e9)
+    assert not np.allclose(env.step_state.body.read(None, env.end)["pos"], 1e9)
     with pytest.raises(ValueError, match=r"world ids must lie in \[0, 8\), got \[8\]"):
-        env.body.read(np.array([8]), env.end)
+        env.step_state.body.read(np.array([8]), env.end)
     with pytest.raises(ValueError, match=r"end must be a C-contiguous float64 \(8, 3\) array"):
-        env.body.read(None, env.end[:4])
+        env.step_state.body.read(None, env.end[:4])
 
 
 @needs_native
@@ -121,7 +122,7 @@ def test_non_finite_state_reads_without_crashing(env):
     w = hand_made_worlds(env)
     w.qpos[:, 3] = 1.0
     w.xpos[1, env.built.foot_body_ids] = np.nan
-    w.sensordata[1, env.body.foot_force_cols[:, 2]] = 10.0  # in contact
+    w.sensordata[1, env.step_state.body.foot_force_cols[:, 2]] = 10.0  # in contact
     s = BodyStateReader(w, env.built, env.trails, env.robot.foot_rest_height).read(None, np.zeros((2, 3)))
     assert s["contact"][1].all() and not s["foot_on_edge"][1].any()
     assert np.isnan(s["foot_lift"][1]).all() and np.isfinite(s["foot_lift"][0]).all()
@@ -129,5 +130,21 @@ def test_non_finite_state_reads_without_crashing(env):
 
 def test_numpy_fallback_when_native_is_off(env, monkeypatch):
     monkeypatch.setenv("LEGOH_RL_NATIVE", "0")
-    assert not env.body.native
-    assert_same(env.body.read(None, env.end), env.body.read_numpy(None, env.end))
+    assert not env.step_state.body.native
+    assert_same(env.step_state.body.read(None, env.end), env.step_state.body.read_python(None, env.end))
+
+
+def test_the_python_body_state_reads_tensors_as_it_reads_numpy(env):
+    """One Python body state for both backends: on tensors of the simulation's arrays and the
+    terrain's grids as tensors (what a device-resident step reads) it gives the host's values,
+    in the tensors' dtype, rows in the order asked."""
+    host = env.step_state.body
+    views = {name: torch.as_tensor(np.array(a)) for name, a in host.arrays.items()}
+    reader = BodyStateReader(views, env.built, DeviceTerrain(env.trails, "cpu"), env.robot.foot_rest_height)
+    assert not reader.native  # the native kernel reads the host's float64 arrays only
+    ids = np.array([5, 0, 7])
+    got, ref = reader.read(torch.as_tensor(ids), torch.as_tensor(env.end)), host.read_python(ids, env.end)
+    assert got.keys() == ref.keys() and got["contact"].any()
+    for key, value in ref.items():
+        assert got[key].shape == value.shape and got[key].dtype == torch.from_numpy(value).dtype, key
+        np.testing.assert_allclose(got[key].numpy(), value, rtol=0, atol=1e-4, err_msg=key)  # float32 surface

@@ -116,7 +116,7 @@ def test_partial_reset_refreshes_only_the_reset_rows_and_they_match_a_full_recom
     stepped = act(env, 0.5 * torch.randn(4, env.A))
     mask = torch.tensor([[False], [True], [False], [True]])
     td = env._reset(TensorDict({"_reset": mask}, batch_size=[4]))
-    full = env._refresh_observations(np.arange(env.cfg.num_envs))
+    full = env.step_state._refresh_observations(np.arange(env.cfg.num_envs))
     for key, value in full.items():
         assert np.allclose(td[key].numpy(), np.asarray(value, dtype=np.float32)), key
     assert td["perception_tick"].reshape(-1).tolist() == [False, True, False, True]
@@ -477,8 +477,8 @@ def test_gait_clock_in_proprio_and_contact_reward():
     np.testing.assert_allclose(env.gait_phase(), [0.0, phase])
     # no term reads the swing reference here, so the reward state carries none
     state = env.read_state()
-    state["goal_dirs_w"] = env._goal_dirs(state["pos"])
-    assert env._reward_state(state).gait_ref_q is None
+    state["goal_dirs_w"] = env.step_state._goal_dirs(state["pos"])
+    assert env.step_state._reward_state(state).gait_ref_q is None
 
 
 def test_gait_options_refused_when_bad():

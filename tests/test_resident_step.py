@@ -1,4 +1,5 @@
-"""The device-resident step (env.resident) against the host step, both on MuJoCo Warp's CPU device.
+"""The device-resident step (``cfg.resident``: the step state on the device) against the host step,
+both on MuJoCo Warp's CPU device.
 
 The two paths step the same simulation: the resident one reads Warp's arrays as tensors and
 computes observations, rewards and metrics there; the host one copies the state to numpy. The PD
@@ -62,7 +63,7 @@ def assert_same_outputs(nh, nr, obs_atol=1e-5):
 
 def test_oracle_resident_step_equals_the_host_step_over_resets_and_pushes():
     host, res = pair(mode="oracle")
-    assert host.resident is None and res.resident is not None and res.worlds.resident
+    assert host.step_state.device is None and res.step_state.device is not None and res.worlds.resident
     calls_h, calls_r = [], []
     spy_curriculum(host, calls_h)
     spy_curriculum(res, calls_r)
@@ -85,7 +86,7 @@ def test_student_resident_step_with_depth_gait_clock_and_pits_equals_the_host_st
     kw = dict(mode="student", gait_period=0.8, gait_feedforward=0.5,
               reward_overrides={"feet_in_pit": -1.0, "gait_contact": 0.5, "gait_joint_ref": 0.5})
     host, res = pair(**kw)
-    assert "feet_in_pit" in res.weights and res.resident.terrain.pit is not None
+    assert "feet_in_pit" in res.weights and res.step_state.terrain.pit is not None
     for nh, nr in rollout_both(host, res, 25, scale=0.5):
         assert nr["depth"].shape == nh["depth"].shape
         assert_same_outputs(nh, nr)
@@ -100,7 +101,7 @@ def test_feed_forward_targets_of_the_resident_step_are_the_host_steps():
         ctrl_h = host.worlds.ctrl.astype(np.float32)
         ctrl_r = res.worlds.views["ctrl"].numpy()
         assert np.array_equal(ctrl_h, ctrl_r)
-    phase = res.resident.gait_phase()
+    phase = res.step_state.gait_phase()
     assert phase is not None and phase.dtype == torch.float64 and 0 < float(phase.max()) < 1
 
 
@@ -136,7 +137,7 @@ def test_a_diverged_world_and_a_bad_action_on_the_resident_step():
     assert env.diverged_total == 1 and env.bad_action_total == 1
     qpos = env.worlds.views["qpos"].double().numpy()
     assert np.allclose(qpos[2], home[2], atol=1e-6)  # back home
-    assert torch.isfinite(out["proprio"]).all() and env.resident.action[1].abs().max() == 0.0
+    assert torch.isfinite(out["proprio"]).all() and env.step_state.action[1].abs().max() == 0.0
 
 
 def test_read_state_of_a_resident_env_is_the_host_readers():

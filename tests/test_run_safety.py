@@ -249,6 +249,6 @@ def test_env_takes_bfloat16_actions_and_names_a_missing_action():
     a = torch.full((2, env.A), 0.1)
     nxt = env.step(TensorDict({"action": a.to(torch.bfloat16)}, batch_size=[2]))["next"]
     assert torch.isfinite(nxt["proprio"]).all()
-    np.testing.assert_allclose(env.action, np.full((2, env.A), float(torch.tensor(0.1).to(torch.bfloat16))))
+    np.testing.assert_allclose(env.step_state.action, np.full((2, env.A), float(torch.tensor(0.1).to(torch.bfloat16))))
     with pytest.raises(KeyError, match=r"needs an 'action' entry of shape \(2, 10\)"):
         env.step(TensorDict({"other": a}, batch_size=[2]))

@@ -1,29 +1,35 @@
-"""The worlds' body state as numpy arrays: where observations and rewards start.
+"""The worlds' body state: where observations and rewards start.
 
-:class:`BodyStateReader` turns the MuJoCo batch's live arrays (qpos, qvel, contact sensors, body
+:class:`BodyStateReader` turns the simulation's live arrays (qpos, qvel, contact sensors, body
 positions, actuator forces) and the terrain under the robot into named ``(n, ...)`` arrays for
-any subset of worlds. It has two paths that give the same values:
+any subset of worlds, wherever those arrays live: the host's float64 numpy arrays (the host
+step) or a device's float32 torch tensors (the device-resident step, docs/gpu_physics.md). It
+has two paths that give the same values:
 
-* numpy (:meth:`BodyStateReader.read_numpy`): the reference, readable line by line, and the
-  fallback when the native library is unavailable (``LEGOH_RL_NATIVE=0``, no compiler) or the
-  trail source offers no grids to read directly;
-* native (``lh_body_state`` in ``native/body_state.c``): one C call for everything, ~40 numpy
-  calls fewer per control step (tests: ``tests/test_body_state.py`` compares the two).
+* Python (:meth:`BodyStateReader.read_python`), written once against the array API
+  (:mod:`legoh_rl.envs.array_api`): the reference, readable line by line, the device-resident
+  step's body state, and the host's fallback when the native library is unavailable
+  (``LEGOH_RL_NATIVE=0``, no compiler) or the trail source offers no grids to read directly;
+* native (``lh_body_state`` in ``native/body_state.c``): the host's fast path, one C call for
+  everything, ~40 numpy calls fewer per control step (``tests/test_body_state.py`` holds the two
+  to each other, and the Python path on torch tensors to the same values).
 """
 
 from __future__ import annotations
 
 import ctypes
+from collections.abc import Mapping
 
 import numpy as np
 
+from legoh_rl.envs.array_api import namespace_of
+from legoh_rl.envs.device_terrain import HostTerrain
 from legoh_rl.envs.height_map import HeightMap
 from legoh_rl.envs.native.build import load_library
-from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.robots import BuiltModel
 from legoh_rl.envs.sensors import quat_to_rotmat, roll_pitch_from_gravity
 
-__all__ = ["BodyStateReader", "CONTACT_FORCE_THRESHOLD", "FLOAT_FIELDS", "FLAG_FIELDS"]
+__all__ = ["BodyStateReader", "CONTACT_FORCE_THRESHOLD", "FLOAT_FIELDS", "FLAG_FIELDS", "LIVE_ARRAYS"]
 
 CONTACT_FORCE_THRESHOLD = 1.0  # N: a foot is in contact above this net force
 
@@ -37,6 +43,8 @@ FLOAT_FIELDS = (
 )
 #: The bool outputs, in order.
 FLAG_FIELDS = (("contact", (2,)), ("foot_on_edge", (2,)))
+#: The simulation arrays the body state is read from, (N, ...) each.
+LIVE_ARRAYS = ("qpos", "qvel", "sensordata", "xpos", "actuator_force")
 
 _vp, _i64, _f32, _f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_float, ctypes.c_double
 
@@ -66,12 +74,16 @@ class BodyStateReader:
     """Reads the body state of N worlds (all, or any subset of rows).
 
     Args:
-        worlds: the batch (its live arrays are read at every call).
+        arrays: the simulation's live arrays :data:`LIVE_ARRAYS` (read at every call), as
+            attributes (a :class:`~legoh_rl.envs.physics.BatchedWorlds`' host arrays) or a mapping
+            (:attr:`~legoh_rl.envs.warp_physics.WarpWorlds.views`' tensors): all numpy or all torch.
         built: the compiled model (leg joints' addresses, feet bodies and sensors).
-        trails: the terrain: ``height_at`` (M, 2) -> (M,) surface heights and ``edge_at`` (M, 2) ->
-            (M,) bool; a source that also has ``height_at_t`` (a :class:`HeightMap`, the same surface)
-            and ``edge_grid`` (edge mask (nx, ny), origin (x0, y0), resolution; nearest sample) is
-            read by the native kernel directly.
+        terrain: the terrain lookups, on the arrays' side: a
+            :class:`~legoh_rl.envs.device_terrain.HostTerrain` (or a trail source, wrapped in one)
+            for numpy arrays, a :class:`~legoh_rl.envs.device_terrain.DeviceTerrain` for tensors.
+            A host trail source with ``height_at_t`` (a :class:`HeightMap`) and ``edge_grid`` (edge
+            mask (nx, ny), origin (x0, y0), resolution; nearest sample) is read by the native
+            kernel directly.
         foot_rest_height: a standing foot body's height above the ground, m.
 
     :meth:`read` returns, for n = ``len(ids)`` worlds (or N): ``pos`` (n, 3) base position,
@@ -83,16 +95,30 @@ class BodyStateReader:
     force above 1 N), ``foot_on_edge`` (n, 2) bool (in contact on an edge sample),
     ``base_height`` (n,) m above the surface, ``goal_vec`` (n, 2) world xy to P_B, ``goal_dist``
     (n,) m, ``feet_xy`` (n, 2, 2), ``foot_lift`` (n, 2) m above the surface (0 standing). Every
-    array is fresh (nothing aliases the simulation or an earlier call).
+    array is fresh (nothing aliases the simulation or an earlier call). The arrays are of the live
+    arrays' kind and float dtype (float64 numpy on the host, float32 tensors on a device).
     """
 
-    def __init__(self, worlds: BatchedWorlds, built: BuiltModel, trails, foot_rest_height: float) -> None:
-        self.worlds, self.built, self.trails = worlds, built, trails
+    def __init__(self, arrays, built: BuiltModel, terrain, foot_rest_height: float) -> None:
+        self.arrays = {k: arrays[k] if isinstance(arrays, Mapping) else getattr(arrays, k) for k in LIVE_ARRAYS}
+        self.built = built
+        self.terrain = terrain if hasattr(terrain, "heights") else HostTerrain(terrain)
+        self.num_worlds = int(self.arrays["qpos"].shape[0])
         self.foot_rest_height = float(foot_rest_height)
         # sensordata columns of the feet's and the penalised bodies' contact forces, (2, 3) and (P, 3)
         self.foot_force_cols = np.array([[a + 1, a + 2, a + 3] for a in built.foot_sensor_adr], dtype=np.int64)
         self.pen_force_cols = np.array([[a + 1, a + 2, a + 3] for a in built.penalised_sensor_adr],
                                        dtype=np.int64).reshape(-1, 3)
+        #: the index arrays of the Python path by name, on the arrays' side (a device's gathers
+        #: take tensors there): ``qpos_adr``/``dof_adr``/``act_ids`` (A,), ``foot_bodies`` (2,),
+        #: ``foot_cols`` (2, 3), ``pen_cols`` (P, 3)
+        like = self.arrays["qpos"]
+        xp = namespace_of(like)
+        self.index = {name: np.asarray(ids, dtype=np.int64) if xp is np else
+                       xp.asarray(np.asarray(ids, dtype=np.int64), device=like.device)
+                       for name, ids in (("qpos_adr", built.qpos_adr), ("dof_adr", built.dof_adr),
+                                         ("act_ids", built.actuator_ids), ("foot_bodies", built.foot_body_ids),
+                                         ("foot_cols", self.foot_force_cols), ("pen_cols", self.pen_force_cols))}
         self.A = int(built.actuator_ids.size)
         self.P = int(self.pen_force_cols.shape[0])
         sizes = {"A": self.A, "P": self.P}
@@ -110,12 +136,13 @@ class BodyStateReader:
     def read(self, ids: np.ndarray | None = None, end: np.ndarray | None = None) -> dict:
         """The state of worlds ``ids`` (n,) int (rows in that order; None = all N).
 
-        ``end`` (N, 3): each world's P_B (for ``goal_vec``/``goal_dist``); None = zeros.
+        ``end`` (N, 3): each world's P_B (for ``goal_vec``/``goal_dist``); None = zeros. On a
+        device, ``ids`` and ``end`` are tensors there.
         """
         lib = load_library() if self._cfg is not None else None
         if lib is None:
-            return self.read_numpy(ids, end)
-        N = self.worlds.num_worlds
+            return self.read_python(ids, end)
+        N = self.num_worlds
         end = np.zeros((N, 3)) if end is None else end
         if end.shape != (N, 3) or end.dtype != np.float64 or not end.flags.c_contiguous:
             raise ValueError(f"end must be a C-contiguous float64 ({N}, 3) array, got {end.dtype} {end.shape}")
@@ -138,50 +165,58 @@ class BodyStateReader:
         state["contact"], state["foot_on_edge"] = flags[: 2 * n].reshape(n, 2), flags[2 * n:].reshape(n, 2)
         return state
 
-    def read_numpy(self, ids: np.ndarray | None = None, end: np.ndarray | None = None) -> dict:
-        """:meth:`read` in numpy (the reference; the fallback without the native library)."""
-        w, b = self.worlds, self.built
+    def read_python(self, ids=None, end=None) -> dict:
+        """:meth:`read` in Python over the array API: the reference (and the path of a device's
+        tensors and of the host without the native library)."""
+        a, ix, terrain = self.arrays, self.index, self.terrain
+        xp = namespace_of(a["qpos"])
         sel = slice(None) if ids is None else ids
-        qpos, qvel = w.qpos[sel], w.qvel[sel]
-        pos = qpos[:, 0:3].copy()
+        qpos, qvel = a["qpos"][sel], a["qvel"][sel]
+        n = qpos.shape[0]
+        pos = xp.asarray(qpos[:, 0:3], copy=True)
         rot = quat_to_rotmat(qpos[:, 3:7])
         gravity_b = -rot[:, 2, :]  # world -z in the base frame = third row of R, negated
         roll, pitch = roll_pitch_from_gravity(gravity_b)
-        yaw = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])  # = yaw_from_quat(quat)
-        lin_vel_w = qvel[:, 0:3].copy()
+        yaw = xp.atan2(rot[:, 1, 0], rot[:, 0, 0])  # = yaw_from_quat(quat)
+        lin_vel_w = xp.asarray(qvel[:, 0:3], copy=True)
         lin_vel_b = (lin_vel_w[:, None, :] @ rot)[:, 0]  # R^T v
-        ang_vel_b = qvel[:, 3:6].copy()  # free joint: angular velocity in the body frame
-        sd = w.sensordata[sel]
-        foot_force = sd[:, self.foot_force_cols]  # (n, 2, 3)
-        pen_force = sd[:, self.pen_force_cols]  # (n, P, 3)
-        contact = np.einsum("nfi,nfi->nf", foot_force, foot_force) > CONTACT_FORCE_THRESHOLD**2
-        feet_pos = w.xpos[sel][:, b.foot_body_ids]
+        ang_vel_b = xp.asarray(qvel[:, 3:6], copy=True)  # free joint: angular velocity in the body frame
+        sd = a["sensordata"][sel]
+        foot_force = sd[:, ix["foot_cols"]]  # (n, 2, 3)
+        pen_force = sd[:, ix["pen_cols"]]  # (n, P, 3)
+        contact = xp.sum(foot_force * foot_force, axis=-1) > CONTACT_FORCE_THRESHOLD**2
+        feet_pos = a["xpos"][sel][:, ix["foot_bodies"]]
         feet_xy = feet_pos[..., :2]
-        foot_on_edge = self.trails.edge_at(feet_xy.reshape(-1, 2)).reshape(-1, 2).astype(bool)
+        flat_feet = xp.reshape(feet_xy, (-1, 2))
+        foot_on_edge = xp.reshape(terrain.edge(flat_feet), (-1, 2))
         # terrain under the base and under each foot, one lookup: (n,) then (n, 2)
-        heights = self.trails.height_at(np.concatenate([pos[:, :2], feet_xy.reshape(-1, 2)]))
-        ground, feet_ground = heights[: pos.shape[0]], heights[pos.shape[0]:].reshape(-1, 2)
-        goal_vec = (np.zeros(2) if end is None else end[sel, :2]) - pos[:, :2]
+        heights = terrain.heights(xp.concat([pos[:, :2], flat_feet]))
+        ground, feet_ground = heights[:n], xp.reshape(heights[n:], (-1, 2))
+        goal_vec = (0.0 if end is None else end[sel, :2]) - pos[:, :2]
         return {
             "pos": pos, "rot": rot, "gravity_b": gravity_b, "roll": roll, "pitch": pitch, "yaw": yaw,
             "lin_vel_w": lin_vel_w, "lin_vel_b": lin_vel_b, "ang_vel_b": ang_vel_b,
-            "q": qpos[:, b.qpos_adr].copy(), "dq": qvel[:, b.dof_adr].copy(),
-            "torques": w.actuator_force[sel][:, b.actuator_ids],
+            "q": qpos[:, ix["qpos_adr"]], "dq": qvel[:, ix["dof_adr"]],
+            "torques": a["actuator_force"][sel][:, ix["act_ids"]],
             "foot_force": foot_force, "pen_force": pen_force, "contact": contact,
             "foot_on_edge": foot_on_edge & contact, "base_height": pos[:, 2] - ground,
-            "goal_vec": goal_vec, "goal_dist": np.hypot(goal_vec[:, 0], goal_vec[:, 1]),
-            "feet_xy": feet_xy.copy(), "foot_lift": feet_pos[..., 2] - feet_ground - self.foot_rest_height,
+            "goal_vec": goal_vec, "goal_dist": xp.hypot(goal_vec[:, 0], goal_vec[:, 1]),
+            "feet_xy": xp.asarray(feet_xy, copy=True),
+            "foot_lift": feet_pos[..., 2] - feet_ground - self.foot_rest_height,
         }
 
     # ------------------------------------------------------------------ native setup
     def _native_config(self) -> _BodyCfg | None:
         """The kernel's description of the arrays, or None when the trail source has no grids to
-        read directly. The arrays it points into are kept alive by this object."""
-        surface = getattr(self.trails, "height_at_t", None)
-        edge_grid = getattr(self.trails, "edge_grid", None)
-        if not isinstance(surface, HeightMap) or edge_grid is None:
+        read directly, or the arrays are not the host's float64 ones. The arrays it points into are
+        kept alive by this object."""
+        trails = getattr(self.terrain, "trails", None)
+        surface = getattr(trails, "height_at_t", None)
+        edge_grid = getattr(trails, "edge_grid", None)
+        if (not isinstance(surface, HeightMap) or edge_grid is None
+                or any(not isinstance(v, np.ndarray) or v.dtype != np.float64 for v in self.arrays.values())):
             return None
-        w, b = self.worlds, self.built
+        w, b = self.arrays, self.built
         edge, (ex0, ey0), eres = edge_grid
         self._keep = {
             "qpos_adr": np.ascontiguousarray(b.qpos_adr, dtype=np.int64),
@@ -196,7 +231,7 @@ class BodyStateReader:
         k = self._keep
         nx, ny, x0, y0, inv_res = surface.grid_args
         hmap = _HMap(surface.heights.ctypes.data, nx, ny, x0, y0, inv_res, None, 0)
-        arrays = (w.qpos, w.qvel, w.sensordata, w.xpos, w.actuator_force)
+        arrays = tuple(w[k] for k in LIVE_ARRAYS)
         return _BodyCfg(
             *(a.ctypes.data for a in arrays), *(_row_stride(a) for a in arrays),
             k["qpos_adr"].ctypes.data, k["dof_adr"].ctypes.data, k["act_ids"].ctypes.data, self.A,

@@ -1,9 +1,10 @@
-"""The terrain lookups of a step, as torch tensors on the simulation's device.
+"""The terrain lookups of a step: on the host (numpy) or on the simulation's device (torch).
 
-A device-resident step (``HikingEnvConfig.resident``) reads the terrain under the base and feet,
-the scandots, and the edge and pit samples under the feet without leaving the device. This holds
-the trail grid's surface height map and its edge and pit masks there, with the host lookups'
-conventions: bilinear surface heights, border clamped (:class:`~legoh_rl.envs.height_map.HeightMap`,
+A step reads the terrain under the base and feet, the scandots, and the edge and pit samples
+under the feet. :class:`HostTerrain` answers from the trail source's own numpy lookups (the host
+step); :class:`DeviceTerrain`, with the same methods, without leaving the device (a
+device-resident step, ``HikingEnvConfig.resident``). It holds the trail grid's surface height map
+and its edge and pit masks there, with the host lookups' conventions: bilinear surface heights, border clamped (:class:`~legoh_rl.envs.height_map.HeightMap`,
 ``grid_sample`` in float32), and for the masks the nearest sample, points clamped to the grid
 (``TerrainMap.index_of``: round half to even, as ``np.rint`` and ``torch.round`` both do).
 """
@@ -13,9 +14,40 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from legoh_rl.envs.height_map import HeightMap
+from legoh_rl.envs.height_map import HeightMap, yaw_frame_points
+from legoh_rl.envs.sensors import scandots
 
-__all__ = ["DeviceTerrain", "MaskGrid"]
+__all__ = ["DeviceTerrain", "HostTerrain", "MaskGrid"]
+
+
+class HostTerrain:
+    """A trail source's numpy lookups, with :class:`DeviceTerrain`'s methods.
+
+    Args:
+        trails: the trail source (``height_at``, ``edge_at``; ``pit_at`` for :meth:`pit`; the
+            faster ``height_around`` for :meth:`scandots` when it has one).
+    """
+
+    def __init__(self, trails) -> None:
+        self.trails = trails
+
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """Surface heights at world points (M, 2) -> (M,)."""
+        return self.trails.height_at(xy)
+
+    def edge(self, xy: np.ndarray) -> np.ndarray:
+        """Edge samples at world points (M, 2) -> (M,) bool."""
+        return self.trails.edge_at(xy).astype(bool)
+
+    def pit(self, xy: np.ndarray) -> np.ndarray:
+        """Pit samples at world points (M, 2) -> (M,) bool."""
+        return self.trails.pit_at(xy)
+
+    def scandots(self, pos: np.ndarray, yaw: np.ndarray, offsets: np.ndarray, base_height_target: float) -> np.ndarray:
+        """(N, K) heights at ``offsets`` (K, 2) around bases at ``pos`` (N, 3) with headings ``yaw``
+        (N,), relative to the nominal ground, clipped to [-1, 1] (:func:`~legoh_rl.envs.sensors.scandots`)."""
+        return scandots(pos, yaw, offsets, self.trails.height_at, base_height_target,
+                        getattr(self.trails, "height_around", None))
 
 
 class MaskGrid:
@@ -71,3 +103,9 @@ class DeviceTerrain:
     def heights(self, xy: torch.Tensor) -> torch.Tensor:
         """Surface heights at world points (..., 2) -> (...,) float32."""
         return self.surface(xy.to(torch.float32))
+
+    def scandots(self, pos: torch.Tensor, yaw: torch.Tensor, offsets: torch.Tensor,
+                 base_height_target: float) -> torch.Tensor:
+        """:meth:`HostTerrain.scandots` on the device: (N, K) float32, ``offsets`` (K, 2) there."""
+        ground = pos[:, 2:3] - base_height_target
+        return (self.heights(yaw_frame_points(pos[:, :2], yaw, offsets)) - ground).clamp(-1.0, 1.0)

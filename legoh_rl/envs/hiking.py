@@ -15,6 +15,10 @@ Keys (docs/observations.md has every layout and scale; docs/keys.md the contract
   ``category`` of the trail;
 * ``("info", "diverged")``: the world's physics diverged and was reset (the episode is
   truncated); ``("info", "bad_action")``: the action held NaN/inf and was replaced by zeros.
+
+Over 500 lines because it is the env's whole public face in one class (specs, step and reset,
+the evaluation protocol's pins, rendering, checkpoint state); the step's per-world state and
+arithmetic live in :mod:`legoh_rl.envs.step_state` and :mod:`legoh_rl.envs.step_quantities`.
 """
 
 from __future__ import annotations
@@ -27,15 +31,13 @@ from typing import Protocol
 import mujoco
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from legoh_rl.envs.body_state import BodyStateReader
 from legoh_rl.envs.config import ANG_VEL_SCALE, DOF_VEL_SCALE, LIN_VEL_SCALE, HikingEnvConfig
 from legoh_rl.envs.curriculum import Curriculum, world_categories
-from legoh_rl.envs.gait import swing_joints, swing_reference
-from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
+from legoh_rl.envs.metrics import METRIC_NAMES
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.physics import BatchedWorlds
 from legoh_rl.envs.randomization import DomainRandomizer
@@ -47,19 +49,15 @@ from legoh_rl.envs.render import (
     add_route_markers,
     build_render_model,
 )
-from legoh_rl.envs.resident import ResidentStep
 from legoh_rl.envs.rewards import reward_weights
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, build_model, get_robot_spec
-from legoh_rl.envs.sensors import DepthCamera, scandot_offsets, scandots
-from legoh_rl.envs.step_quantities import StepQuantities
+from legoh_rl.envs.sensors import DepthCamera
+from legoh_rl.envs.step_state import StepState
 from legoh_rl.envs.threads import torch_threads
 from legoh_rl.envs.warp_depth import WarpDepthCamera
 from legoh_rl.envs.warp_physics import WarpWorlds
 
 __all__ = ["HikingEnv", "TrailSource", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
-
-_CPU = torch.device("cpu")
-
 
 def _cells(levels: np.ndarray, categories: np.ndarray) -> set[tuple[int, int]]:
     """The distinct (level, category) pairs of some worlds, (n,) int each, as a set.
@@ -72,6 +70,22 @@ def _cells(levels: np.ndarray, categories: np.ndarray) -> set[tuple[int, int]]:
     codes = levels.astype(np.int64) * span + categories
     distinct, first = np.unique(codes, return_index=True)
     return {(int(c // span), int(c % span)) for c in distinct[np.argsort(first)]}
+
+
+class _HostView:
+    """An env attribute that reads the step state's array of the same name as a host numpy array
+    (the array itself on the host, a copy from a device-resident step)."""
+
+    def __init__(self, doc: str) -> None:
+        self.__doc__ = doc + " (numpy; a copy on a device)"
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, env: HikingEnv | None, owner: type | None = None):
+        if env is None:
+            return self
+        return env.step_state.to_host(getattr(env.step_state, self.name))
 
 
 class TrailSource(Protocol):
@@ -106,7 +120,7 @@ class TrailSource(Protocol):
     def edge_at(self, xy: np.ndarray) -> np.ndarray: ...
 
 
-class HikingEnv(EnvBase, StepQuantities):
+class HikingEnv(EnvBase):
     """Batched humanoid hiking on procedurally generated trails (MuJoCo, TorchRL).
 
     Args:
@@ -116,6 +130,11 @@ class HikingEnv(EnvBase, StepQuantities):
 
     Shapes: ``batch_size = [N]``; ``action`` (N, A) in [-clip, clip]; ``reward`` (N, 1);
     ``done``/``terminated``/``truncated`` (N, 1) bool.
+
+    Backends: the per-world state of the step, its resets, action handling and output live in a
+    :class:`~legoh_rl.envs.step_state.StepState` (:attr:`step_state`): numpy arrays on the host,
+    or, with ``cfg.step_on_device`` (MuJoCo Warp on a GPU), tensors on the simulation's device. The
+    step itself is the same for both.
 
     Resets: a partial reset (a ``"_reset"`` (N, 1) mask, as torchrl's ``step_and_maybe_reset``
     sends) re-spawns and re-reads only the masked worlds; the other rows of its output are the
@@ -167,9 +186,6 @@ class HikingEnv(EnvBase, StepQuantities):
         elif cfg.depth_enabled:  # obstacles are static and the same in every world: one caster
             caster = ObstacleRayCaster.from_model(self.worlds.model, group=OBSTACLE_GEOM_GROUP)
             self.camera = DepthCamera(cfg.depth_camera, self.robot.camera_fovy_deg, obstacle_caster=caster)
-        self.scandot_xy = scandot_offsets()
-        self.body = BodyStateReader(self.worlds, self.built, trails, self.robot.foot_rest_height)
-        self.swing_joints = swing_joints(self.robot.leg_joints) if cfg.gait_period else None
         self.rng = np.random.default_rng(cfg.seed)
         self.global_steps = 0
         self.diverged_total = 0
@@ -178,11 +194,6 @@ class HikingEnv(EnvBase, StepQuantities):
         #: (``worlds.step``) and in resets (``_reset``): where a collector's env time goes
         self.time_spent = {"step": 0.0, "physics": 0.0, "reset": 0.0}
 
-        m = self.built.model
-        self.q_default = np.array(self.robot.default_joint_pos)
-        jr = self.built.joint_range
-        mid, half = jr.mean(axis=1), (jr[:, 1] - jr[:, 0]) / 2
-        self.q_soft_limits = np.stack([mid - 0.95 * half, mid + 0.95 * half], axis=1)
         self._tiles_by = {}
         for t in range(trails.tile_level.shape[0]):
             self._tiles_by.setdefault((int(trails.tile_level[t]), int(trails.tile_category[t])), []).append(t)
@@ -191,36 +202,8 @@ class HikingEnv(EnvBase, StepQuantities):
         self.curriculum = Curriculum(cfg.curriculum if not cfg.is_eval else type(cfg.curriculum)(enabled=False),
                                      trails.num_levels, levels0)
         self.world_category = world_categories(N, np.unique(trails.tile_category), cfg.category_weights)
-        self.metrics = EpisodeMetrics(N)
-        self._alloc_buffers(N, m)
-        self._make_specs()
-        #: the device-resident step (``cfg.resident``), or None: the host step
-        self.resident = ResidentStep(self) if cfg.step_on_device else None
-
-    # ------------------------------------------------------------------ buffers and specs
-    def _alloc_buffers(self, N: int, m: mujoco.MjModel) -> None:
-        A = self.A
-        G = self.trails.tile_goals.shape[1] + 1
-        self.tile = np.zeros(N, dtype=np.int64)
-        self.goals = np.zeros((N, G, 3))  # expert goals followed by P_B
-        self.num_goals = np.ones(N, dtype=np.int64)
-        self.goal_idx = np.zeros(N, dtype=np.int64)
-        self.goal_offsets = np.arange(self.cfg.num_goals)
-        self.world_index = np.arange(N)
-        self.tile_level, self.tile_category = self.trails.tile_level, self.trails.tile_category
-        self.hip_idx = self.built.hip_idx
-        self.start = np.zeros((N, 3))
-        self.end = np.zeros((N, 3))
-        self.waypoint = np.zeros((N, 3))
-        self.episode_step = np.zeros(N, dtype=np.int64)
-        self.action = np.zeros((N, A))
-        self.action_prev = np.zeros((N, A))
-        self.action_hist = np.zeros((N, self.cfg.domain_rand.delay_steps + 1, A))
-        self.dq_prev = np.zeros((N, A))
-        self.torques_prev = np.zeros((N, A))
-        self.feet_air_time = np.zeros((N, 2))
-        self.last_contact = np.zeros((N, 2), dtype=bool)
-        self.feet_xy_prev = np.zeros((N, 2, 2))
+        #: the camera's depth images (N, 1, H, W), refreshed on the worlds it renders: numpy when
+        #: marched on the host, a tensor where Warp casts them; None without a camera
         self.depth = None
         if self.camera is not None:
             c = self.cfg.depth_camera
@@ -229,11 +212,13 @@ class HikingEnv(EnvBase, StepQuantities):
                                         device=self.worlds.torch_device)
             else:
                 self.depth = np.ones((N, 1, c.height, c.width), dtype=np.float32)
-        self.tick = np.ones(N, dtype=bool)
-        self._no_worlds = np.zeros(N, dtype=bool)  # read-only all-False mask
-        self._no_worlds.flags.writeable = False
-        self._obs: dict = {}  # the last observation arrays, for partial resets
+        #: the per-world state of the step: on the host, or on the simulation's device (``cfg.step_on_device``)
+        self.step_state = StepState(cfg, self.robot, self.built, trails, self.worlds, self.weights, self.dt,
+                                    self.max_steps, self.randomizer.privileged().shape[1], camera_depth=self.depth,
+                                    device=self.worlds.torch_device if cfg.step_on_device else None)
+        self._make_specs()
 
+    # ------------------------------------------------------------------ specs
     def _make_specs(self) -> None:
         N, A, dev = self.cfg.num_envs, self.A, self.device
         k = self.cfg.num_goals
@@ -242,7 +227,7 @@ class HikingEnv(EnvBase, StepQuantities):
             "proprio": Unbounded(shape=(N, 3 + 2 + 3 * A + 2 + (2 if self.cfg.gait_period else 0)), device=dev),
             "goal_gps": Unbounded(shape=(N, 2), device=dev),
             "waypoint_gps": Unbounded(shape=(N, 2), device=dev),
-            "scandots": Bounded(-1.0, 1.0, shape=(N, self.scandot_xy.shape[0]), device=dev),
+            "scandots": Bounded(-1.0, 1.0, shape=(N, self.step_state.scandot_xy.shape[0]), device=dev),
             "privileged": Unbounded(shape=(N, P), device=dev),
             "expert_goals": Bounded(-1.0, 1.0, shape=(N, k, 2), device=dev),
             "perception_tick": Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev),
@@ -314,34 +299,26 @@ class HikingEnv(EnvBase, StepQuantities):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         started = time.perf_counter()
-        N = self.cfg.num_envs
+        N, st = self.cfg.num_envs, self.step_state
         mask = None
         if tensordict is not None and "_reset" in tensordict.keys():
             mask = tensordict.get("_reset").detach().cpu().numpy().reshape(N).astype(bool, copy=False)
         ids = np.arange(N) if mask is None else np.flatnonzero(mask)
-        if self.resident is not None:
-            self.resident.settle_curriculum(ids)
+        self._settle(st.ended_episodes(ids))  # before the reset draws tiles from the new levels
         self._reset_worlds(ids)
-        self.tick[ids] = True  # a reset world gets a fresh depth frame
-        if self.camera is not None:
-            self._render_depth(np.isin(np.arange(N), ids))
-        if self.resident is not None:
-            res = self.resident
-            res.send_depth(np.isin(np.arange(N), ids))
-            no = torch.zeros(N, dtype=torch.bool, device=res.device)
-            obs = res._refresh_observations(torch.as_tensor(ids, device=res.device))
-            out = res.to_td(obs, res._empty_episode(), info=(no, no), flags=(no, no, no))
-            self.time_spent["reset"] += time.perf_counter() - started
-            return out
-        obs = self._refresh_observations(ids)
-        no = np.zeros(N, bool)
-        out = self._to_td(obs, episode=self._empty_episode(), info=(no, no), flags=(no, no, no))
+        which = np.isin(np.arange(N), ids)  # a reset world gets a fresh depth frame
+        self._render_depth(which)
+        st.take_depth(self.depth, which)
+        obs = st._refresh_observations(st.rows(ids))
+        no = st.zeros(N, dtype=bool)
+        out = st.to_td(obs, st._empty_episode(), info=(no, no), flags=(no, no, no), batch_size=self.batch_size,
+                       device=self.device)
         self.time_spent["reset"] += time.perf_counter() - started
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         started = time.perf_counter()
-        N, A = self.cfg.num_envs, self.A
+        N, A, st = self.cfg.num_envs, self.A, self.step_state
         action = tensordict.get("action", None)
         if action is None:
             raise KeyError(f"HikingEnv.step needs an 'action' entry of shape {(N, A)}; the tensordict has "
@@ -350,52 +327,35 @@ class HikingEnv(EnvBase, StepQuantities):
             raise ValueError(f"action must have shape {(N, A)} (num_envs, num_actions), got {tuple(action.shape)}")
         if not action.dtype.is_floating_point:
             raise TypeError(f"action must be a floating-point tensor, got dtype {action.dtype}")
-        if self.resident is not None:
-            out = self.resident.step(action)
-            self.time_spent["step"] += time.perf_counter() - started
-            return out
-        a = action.detach().to("cpu", torch.float64).numpy()  # any float dtype (bfloat16 has no numpy twin)
-        bad_action = self._no_worlds
-        if not np.isfinite(a.sum()):  # documented: rows with NaN/inf are replaced by zeros and counted
-            bad_action = ~np.isfinite(a).all(axis=1)
-            a[bad_action] = 0.0
-            self.bad_action_total += int(bad_action.sum())
-        clip = self.cfg.action_clip
-        a = np.clip(a, -clip, clip)
-        self.action_prev[:] = self.action
-        self.action[:] = a
-        self.action_hist[:, 1:] = self.action_hist[:, :-1]  # newest first (numpy copies overlapping slices safely)
-        self.action_hist[:, 0] = a
-        delay = self.randomizer.delay_steps(self.global_steps)
-        applied = self.action_hist[:, min(delay, self.action_hist.shape[1] - 1)]
-        targets = self.q_default + self.robot.action_scale * applied
-        if self.cfg.gait_feedforward:  # the clock's swing at the phase the policy just observed
-            targets = targets + self.cfg.gait_feedforward * (self.gait_reference() - self.q_default)
-        self.worlds.set_joint_targets(targets)
-
-        # per-step buffers are updated in place (here and below): assigning an env attribute goes
-        # through nn.Module.__setattr__
-        self.episode_step[:] += 1
+        # documented: rows with NaN/inf are replaced by zeros and counted
+        bad_action, num_bad = st.apply_action(action, self.randomizer.delay_steps(self.global_steps))
+        st.advance_clock()
         self.global_steps += 1
-        self.randomizer.push(self.episode_step % self.push_every == 0, self.rng)
+        self.randomizer.push(st.host_episode_step % self.push_every == 0, self.rng)
         physics = time.perf_counter()
-        diverged = self.worlds.step()
+        diverged_before = self.worlds.diverged_total
+        diverged = self.worlds.step()  # (a resident simulation's one wait for the device: its divergence count)
         self.time_spent["physics"] += time.perf_counter() - physics
-        if diverged.any():
-            self.diverged_total += int(diverged.sum())
+        self.diverged_total += self.worlds.diverged_total - diverged_before
+        self.bad_action_total += int(num_bad)
 
-        state, total, terms, episode, flags = self._score_step(diverged)
-        np.equal(self.episode_step % self.cfg.perception_every, 0, out=self.tick)
-        self._render_depth(self.tick)
-        obs = self._observations(state)
-        self._obs.update(obs)
-        out = self._to_td(obs, episode=episode, info=(diverged, bad_action), reward=total, reward_terms=terms,
-                          flags=flags)
+        state, total, terms, episode, flags = st._score_step(diverged)
+        self._settle(st.ended_episodes())
+        st.update_tick(self.cfg.perception_every)
+        self._render_depth(st.host_tick)
+        st.take_depth(self.depth, st.host_tick)
+        obs = st._observations(state)
+        st._obs.update(obs)
+        out = st.to_td(obs, episode, info=(diverged, bad_action), flags=flags, batch_size=self.batch_size,
+                       device=self.device, reward=total, reward_terms=terms)
         self.time_spent["step"] += time.perf_counter() - started
         return out
 
     # ------------------------------------------------------------------ episodes
     def _reset_worlds(self, ids: np.ndarray) -> None:
+        """Start new episodes in worlds ``ids`` (n,): draw their trail tiles, spawn poses and
+        randomised dynamics from the env's stream (on the host, in this order), reset their
+        simulation and hand the episode constants to the step state."""
         if ids.size == 0:
             return
         tr, cfg, n = self.trails, self.cfg, ids.size
@@ -405,20 +365,16 @@ class HikingEnv(EnvBase, StepQuantities):
             sel = (levels == key[0]) & (cats == key[1])
             choices = self._tiles_for(*key)
             tiles[sel] = choices[self.rng.integers(0, choices.size, size=int(sel.sum()))]  # = rng.choice, faster
-        self.tile[ids] = tiles
-        self.start[ids] = tr.tile_start[tiles]
-        self.end[ids] = tr.tile_end[tiles]
-        self.waypoint[ids] = tr.tile_waypoint[tiles]
+        start = tr.tile_start[tiles]
         ng = tr.tile_num_goals[tiles]
         G = tr.tile_goals.shape[1]
-        self.goals[ids, :G] = tr.tile_goals[tiles]
-        self.goals[ids, ng] = tr.tile_end[tiles]  # P_B is the last goal
-        self.num_goals[ids] = ng + 1
-        self.goal_idx[ids] = 0
+        goals = np.zeros((n, G + 1, 3))  # expert goals followed by P_B
+        goals[:, :G] = tr.tile_goals[tiles]
+        goals[np.arange(n), ng] = tr.tile_end[tiles]  # P_B is the last goal
 
         jitter = 0.0 if cfg.is_eval else 1.0
-        xy = self.start[ids, :2] + jitter * self.rng.uniform(-cfg.spawn_jitter_xy, cfg.spawn_jitter_xy, size=(n, 2))
-        first = self.goals[ids, 0, :2] - xy
+        xy = start[:, :2] + jitter * self.rng.uniform(-cfg.spawn_jitter_xy, cfg.spawn_jitter_xy, size=(n, 2))
+        first = goals[:, 0, :2] - xy
         yaw = np.arctan2(first[:, 1], first[:, 0]) + jitter * self.rng.uniform(
             -cfg.spawn_jitter_yaw, cfg.spawn_jitter_yaw, size=n
         )
@@ -430,20 +386,9 @@ class HikingEnv(EnvBase, StepQuantities):
         qpos[:, 6] = np.sin(yaw / 2)
         self.randomizer.randomize(ids, self.rng)
         self.worlds.reset(ids, qpos=qpos)
-        if self.resident is None:
-            self.feet_xy_prev[ids] = self.worlds.xpos[ids][:, self.built.foot_body_ids, :2]
-
-        self.episode_step[ids] = 0
-        self.action[ids] = 0.0
-        self.action_prev[ids] = 0.0
-        self.action_hist[ids] = 0.0
-        self.dq_prev[ids] = 0.0
-        self.torques_prev[ids] = 0.0
-        self.feet_air_time[ids] = 0.0
-        self.last_contact[ids] = False
-        self.metrics.reset(ids)
-        if self.resident is not None:
-            self.resident.reset_rows(ids)
+        self.step_state.reset_rows(ids, tile=tiles, goals=goals, num_goals=ng + 1, start=start,
+                                   end=tr.tile_end[tiles], waypoint=tr.tile_waypoint[tiles],
+                                   privileged_dr=self.randomizer.privileged()[ids])
 
     def _tiles_for(self, level: int, category: int) -> np.ndarray:
         tiles = self._tiles_by.get((level, category))
@@ -451,10 +396,11 @@ class HikingEnv(EnvBase, StepQuantities):
             tiles = np.flatnonzero(self.trails.tile_level == level)
         return tiles
 
-    def _episodes_ended(self, done: np.ndarray, progress: np.ndarray, expected: np.ndarray,
-                        success: np.ndarray) -> None:
-        ids = np.flatnonzero(done)
-        self.curriculum.update(ids, progress[ids], expected[ids], success[ids], self.rng)
+    def _settle(self, ended: tuple | None) -> None:
+        """Hand ended episodes ``(ids, progress, expected, success)`` (n,) each
+        (:meth:`StepState.ended_episodes`) to the curriculum."""
+        if ended is not None:
+            self.curriculum.update(*ended, self.rng)
 
     # ------------------------------------------------------------------ state, rewards, obs
     def read_state(self, ids: np.ndarray | None = None) -> dict:
@@ -464,23 +410,16 @@ class HikingEnv(EnvBase, StepQuantities):
         Keys (N = num_envs, or n): those of :class:`~legoh_rl.envs.body_state.BodyStateReader`
         (``pos`` (N, 3), ``rot`` (N, 3, 3), ``roll``/``pitch``/``yaw`` (N,), velocities, ``q``/``dq``/
         ``torques`` (N, A), ``contact`` (N, 2) bool, ``foot_lift`` (N, 2) m, ``base_height`` (N,) m,
-        ``goal_dist`` (N,) m to P_B, ...) and ``gait_phase`` (N,) or None. Analysis tools
-        (recipes/gait_stats.py) read it too.
+        ``goal_dist`` (N,) m to P_B, ...) and ``gait_phase`` (N,) or None; float64 (bool for the
+        contact flags) on either backend. Analysis tools (recipes/gait_stats.py) read it too.
         """
-        if self.resident is not None:
-            return self.resident.host_state(ids)
-        state = self.body.read(ids, self.end)
-        phase = self.gait_phase()
-        state["gait_phase"] = None if phase is None else phase[slice(None) if ids is None else ids]
-        return state
+        return self.step_state.host_state(ids)
 
     def gait_reference(self, phase: np.ndarray | None = None) -> np.ndarray | None:
         """(N, A) leg-joint targets of the gait clock's swing reference (default pose + offsets) at
-        ``phase`` (default: the current :meth:`gait_phase`), or None without a clock."""
-        phase = self.gait_phase() if phase is None else phase
-        if phase is None:
-            return None
-        return self.q_default + swing_reference(phase, self.swing_joints, self.A, self.cfg.gait_amplitude)
+        ``phase`` (default: the current :meth:`gait_phase`), or None without a clock (numpy)."""
+        st = self.step_state
+        return st.to_host(st.gait_reference(None if phase is None else st.from_host(phase, np.float64)))
 
     def set_gait_feedforward(self, gain: float) -> None:
         """Set the gain of the clock's swing reference in the PD targets from the next step on
@@ -491,12 +430,31 @@ class HikingEnv(EnvBase, StepQuantities):
         """
         if float(gain) != self.cfg.gait_feedforward:
             self.cfg = dataclasses.replace(self.cfg, gait_feedforward=float(gain))  # validated there
+            self.step_state.cfg = self.cfg
 
     def gait_phase(self) -> np.ndarray | None:
-        """(N,) phase in [0, 1) of each world's gait clock (episode time / period), or None."""
-        if not self.cfg.gait_period:
-            return None
-        return (self.episode_step * self.dt / self.cfg.gait_period) % 1.0
+        """(N,) phase in [0, 1) of each world's gait clock (episode time / period), or None (numpy)."""
+        return self.step_state.to_host(self.step_state.gait_phase())
+
+    # ------------------------------------------------------------------ the step state, read on the host
+    @property
+    def episode_step(self) -> np.ndarray:
+        """(N,) int control steps since each world's reset (the host's copy: write it through
+        :meth:`StepState.set_episode_step`)."""
+        return self.step_state.host_episode_step
+
+    @property
+    def q_default(self) -> np.ndarray:
+        """(A,) the robot's default joint positions, rad (the PD targets of a zero action)."""
+        return self.step_state.q_default_host
+
+    tile = _HostView("(N,) int each world's trail tile.")
+    start = _HostView("(N, 3) each world's P_A.")
+    end = _HostView("(N, 3) each world's P_B.")
+    waypoint = _HostView("(N, 3) each world's trail waypoint.")
+    goals = _HostView("(N, G, 3) each world's expert goals then P_B, valid up to ``num_goals``.")
+    num_goals = _HostView("(N,) int goals of each world's trail, P_B included.")
+    goal_idx = _HostView("(N,) int the goal each world walks to.")
 
     @property
     def depth_on_device(self) -> bool:
@@ -531,57 +489,6 @@ class HikingEnv(EnvBase, StepQuantities):
                 z_max=self.trails.max_height_near(pos[:, :2]) if hasattr(self.trails, "max_height_near") else None,
                 z_min=self.trails.min_height_near(pos[:, :2]) if hasattr(self.trails, "min_height_near") else None,
             )
-
-    def _scandots(self, pos: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-        return scandots(pos, yaw, self.scandot_xy, self.trails.height_at, self.robot.base_height_target,
-                        getattr(self.trails, "height_around", None))
-
-    def _pit_under(self, feet_xy: np.ndarray) -> np.ndarray:
-        return self.trails.pit_at(feet_xy.reshape(-1, 2)).reshape(-1, 2)
-
-    def _privileged_dr(self) -> np.ndarray:
-        return self.randomizer.privileged()
-
-    def _depth_rows(self, sel: slice | np.ndarray) -> np.ndarray | torch.Tensor | None:
-        if self.depth is None:
-            return None
-        return self.depth[sel] if isinstance(self.depth, np.ndarray) else self.depth[_rows(sel, self.depth)]
-
-    def _to_td(self, obs: dict, episode: dict, info: tuple, flags: tuple, reward: np.ndarray | None = None,
-               reward_terms: dict | None = None) -> TensorDict:
-        """The step/reset output: observations, episode metrics, info, the (done, terminated,
-        truncated) flags and, for a step, the reward and its terms.
-
-        Every value is a fresh tensor (the env keeps updating its buffers, e.g. depth and tick, in
-        place). The (N,) columns of each dtype are written into one (K, N) array, one tensor whose
-        rows are the (N, 1) values, so a step makes a handful of tensors rather than one per key.
-        The tensordict is assembled without per-key validation (``TensorDict._new_unsafe``, as
-        torchrl's own wrappers do): every shape and dtype here is fixed by construction and
-        checked against the specs by the tests (``check_env_specs``).
-        """
-        def rows(columns: list, dtype: type) -> tuple[torch.Tensor, ...]:  # K x (N,) -> K x (N, 1)
-            return torch.from_numpy(np.array(columns, dtype=dtype)).unsqueeze(-1).unbind(0)
-
-        on_device = {k: v.clone() for k, v in obs.items() if isinstance(v, torch.Tensor)}  # depth cast by Warp
-        out: dict = {k: torch.from_numpy(np.array(v, dtype=bool if k == "perception_tick" else np.float32))
-                     for k, v in obs.items() if k not in on_device}
-        names = [] if reward_terms is None else list(reward_terms)
-        floats = rows([episode[k] for k in METRIC_NAMES] + [reward_terms[k] for k in names]
-                      + ([] if reward is None else [reward]), np.float32)
-        out["episode"] = dict(zip(METRIC_NAMES, floats, strict=False))
-        out["episode"]["level"], out["episode"]["category"] = rows([episode["level"], episode["category"]], np.int64)
-        if reward_terms is not None:
-            out["reward_terms"] = dict(zip(names, floats[len(METRIC_NAMES):], strict=False))
-        bools = rows([info[0], info[1], *flags], bool)
-        out["info"] = {"diverged": bools[0], "bad_action": bools[1]}
-        if reward is not None:
-            out["reward"] = floats[-1]
-        out["done"], out["terminated"], out["truncated"] = bools[2:]
-        td = TensorDict._new_unsafe(out, batch_size=self.batch_size, device=_CPU)
-        td = td if self.device == _CPU else td.to(self.device)
-        for key, value in on_device.items():
-            td.set(key, value.to(self.device))
-        return td
 
     # ------------------------------------------------------------------ evaluation protocol
     def assign_tiles(self, levels: np.ndarray, categories: np.ndarray) -> None:
@@ -675,9 +582,8 @@ class HikingEnv(EnvBase, StepQuantities):
 
     def _draw_route(self, world: int, scene: mujoco.MjvScene) -> None:
         """Add world ``world``'s trail markers to ``scene`` (:meth:`render` with ``route=True``)."""
-        current = self.resident.goal_idx[world].item() if self.resident is not None else self.goal_idx[world]
         n = int(self.num_goals[world])
-        add_route_markers(scene, self.start[world], self.goals[world, :n], current=int(current),
+        add_route_markers(scene, self.start[world], self.goals[world, :n], current=int(self.goal_idx[world]),
                           waypoint=self.waypoint[world])
 
     def _world_ids(self, worlds) -> tuple[np.ndarray, bool]:
@@ -748,11 +654,6 @@ class HikingEnv(EnvBase, StepQuantities):
         self.diverged_total = int(state["diverged_total"])
         self.bad_action_total = int(state.get("bad_action_total", 0))  # absent in older checkpoints
         self.slice_states = state.get("workers") if streams else None
-
-
-def _rows(sel: slice | np.ndarray, like: torch.Tensor) -> slice | torch.Tensor:
-    """A numpy row selection as an index of the torch tensor ``like`` (on its device)."""
-    return sel if isinstance(sel, slice) else torch.as_tensor(sel, device=like.device)
 
 
 def _default_trails(cfg: HikingEnvConfig) -> TrailSource:

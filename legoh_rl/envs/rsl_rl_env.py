@@ -164,20 +164,16 @@ class HikingRslRlEnv(VecEnv):
 
     @property
     def episode_length_buf(self) -> torch.Tensor:
-        """(N,) int64: control steps since each world's last reset (the env's clock, shared)."""
-        if self.env.resident is not None:
-            return self.env.resident.episode_step
-        return torch.from_numpy(self.env.episode_step)
+        """(N,) int64: control steps since each world's last reset (the env's clock, shared; on
+        the simulation's device with a device-resident step)."""
+        return torch.as_tensor(self.env.step_state.episode_step)
 
     @episode_length_buf.setter
     def episode_length_buf(self, value: torch.Tensor) -> None:
         value = torch.as_tensor(value)
         if tuple(value.shape) != (self.num_envs,):
             raise ValueError(f"episode_length_buf must have shape ({self.num_envs},), got {tuple(value.shape)}")
-        steps = value.detach().to("cpu", torch.int64)
-        self.env.episode_step[:] = steps.numpy()
-        if self.env.resident is not None:
-            self.env.resident.episode_step.copy_(steps.to(self.env.resident.episode_step.device))
+        self.env.step_state.set_episode_step(value.detach().to("cpu", torch.int64).numpy())
 
     @property
     def unwrapped(self) -> HikingRslRlEnv:

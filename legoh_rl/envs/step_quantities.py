@@ -3,10 +3,11 @@
 After the physics, a step of :class:`~legoh_rl.envs.hiking.HikingEnv` moves the expert goals on,
 assembles the reward terms' inputs, decides the episode ends, scores the ended episodes and builds
 the observations. The host step does this on float64 numpy arrays; the device-resident step
-(:class:`~legoh_rl.envs.resident.ResidentStep`, docs/gpu_physics.md) on float32 torch tensors on
-the simulation's device. :class:`StepQuantities` holds the one definition of each, against the
-array API (:mod:`legoh_rl.envs.array_api`), for both: the env and the resident step inherit it and
-keep their per-world state under the same names, as numpy arrays or as tensors.
+(``HikingEnvConfig.resident``, docs/gpu_physics.md) on float32 torch tensors on the simulation's
+device. :class:`StepQuantities` holds the one definition of each, against the array API
+(:mod:`legoh_rl.envs.array_api`), for both: :class:`~legoh_rl.envs.step_state.StepState`, which
+keeps the per-world state as numpy arrays or as tensors, inherits it (the tests also drive it
+from hand-made states).
 
 The per-world state a subclass keeps (N worlds, A actions, G goals slots; arrays of one kind):
 
