@@ -18,11 +18,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "legoh_rl"
 
-#: import cycles known and being removed, each a set of modules. envs/hiking.py imports
-#: envs/resident.py at the top and resident.py imports hiking.py inside a function; issue 51's step-state
-#: work removes this pair, and this entry goes with it. Nothing else may be added here.
-KNOWN_CYCLES: list[frozenset[str]] = [frozenset({"legoh_rl.envs.hiking", "legoh_rl.envs.resident"})]
-
 #: the library's layers (subpackages of legoh_rl) that the wiring layers (training, viewer,
 #: paper_tables, demo) build on and that must not import them
 LIBRARY = ("envs", "transforms", "modules", "objectives")
@@ -147,9 +142,8 @@ def test_the_reader_finds_deferred_imports_and_cycles(tmp_path):
 def test_no_import_cycle_in_legoh_rl():
     """No loop of imports among legoh_rl's modules, deferred (function-level) imports included:
     a loop that works only because one import waits inside a function is still a loop."""
-    found = cycles(import_graph())
-    unknown = [sorted(c) for c in found if c not in KNOWN_CYCLES]
-    assert not unknown, f"import cycles: {unknown}"
+    found = [sorted(c) for c in cycles(import_graph())]
+    assert not found, f"import cycles: {found}"
 
 
 @pytest.mark.parametrize("package", LIBRARY)
