@@ -41,7 +41,8 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
-from legoh_rl.training.builders import env_config, gait_kwargs
+from legoh_rl.training.builders import gait_kwargs
+from legoh_rl.training.config_store import env_config
 from legoh_rl.training.checkpoint import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[1]

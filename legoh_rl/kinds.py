@@ -230,6 +230,10 @@ def refusal(key: str, kind: Kind, value) -> str | None:
         if kind.what:
             return f"{key}: unknown {kind.what} {value!r}; valid: {list(kind.options)}{null}"
         return f"unknown {key} {value!r}; valid: {list(kind.options)}{null}"
+    if isinstance(kind, OneOf) and isinstance(value, list | tuple) and value:  # a list's first bad entry
+        for option in kind.kinds:
+            if isinstance(option, ListOf):
+                return refusal(key, option, value)
     if isinstance(kind, MapOf) and isinstance(value, Mapping):
         for name, entry in value.items():
             if not kind.key.accepts(name):
