@@ -25,7 +25,12 @@ import torch
 from omegaconf import DictConfig
 
 from legoh_rl.envs.threads import torch_threads
-from legoh_rl.objectives.ppo import AdaptiveKLScheduler, make_ppo_loss, policy_kl, set_loss_coefficients
+from legoh_rl.objectives.ppo import (
+    AdaptiveKLScheduler,
+    make_ppo_loss,
+    policy_kl,
+    set_loss_coefficients,
+)
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,

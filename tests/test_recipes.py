@@ -11,8 +11,8 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from legoh_rl.training.config_store import env_config
 from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
+from legoh_rl.training.config_store import env_config
 from legoh_rl.training.evaluation import aggregate, markdown_table
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"

@@ -16,7 +16,18 @@ from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS, DomainRandConfig
 from legoh_rl.envs.robots import ROBOTS
 from legoh_rl.envs.sensors import DepthCameraConfig
 from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
-from legoh_rl.kinds import Choice, Flag, Integer, ListOf, MapOf, Name, Number, OneOf, check_fields, setting
+from legoh_rl.kinds import (
+    Choice,
+    Flag,
+    Integer,
+    ListOf,
+    MapOf,
+    Name,
+    Number,
+    OneOf,
+    check_fields,
+    setting,
+)
 
 __all__ = ["HikingEnvConfig", "MODES", "PHYSICS", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
 

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping, Sequence
 
 import torch
-
 from omegaconf import DictConfig, OmegaConf
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
