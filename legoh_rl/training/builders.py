@@ -25,7 +25,7 @@ from legoh_rl.training.config_checks import (
 from legoh_rl.training.config_store import SET_BY_RECIPE, env_config, refuse_set_by_recipe
 
 __all__ = ["make_env", "eval_env", "oracle_config", "make_oracle", "oracle_networks", "policy_meta",
-           "gait_kwargs", "require_positive", "require_count", "require_layers", "TRAINING_SETTINGS",
+           "gait_kwargs", "require_count", "require_layers", "TRAINING_SETTINGS",
            "check_recipe_settings"]
 
 #: the settings both training recipes (``oracle_ppo.py``, ``unified.py``) share, by kind, but the
@@ -54,15 +54,6 @@ TRAINING_SETTINGS = {
     "checkpoint.overwrite": Flag(),
     "torch_threads": Integer(1),
 }
-
-
-def require_positive(section: str, cfg: Mapping, *names: str) -> None:
-    """Refuse non-positive counts with a message naming ``section.name`` and the value."""
-    for name in names:
-        value = cfg[name]
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or value <= 0:
-            where = f"{section}.{name}" if section else name
-            raise ValueError(f"{where} must be a positive number, got {value!r}")
 
 
 def require_count(section: str, cfg: Mapping, *names: str) -> None:
