@@ -38,7 +38,7 @@ gl:
 	else echo "note: no libEGL found; the demo will skip its video (install libegl1 + libgl1-mesa-dri)"; fi
 
 test: venv
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q --durations=25 tests
 
 lint: venv
 	$(VENV)/bin/ruff check legoh_rl recipes tests benchmarks

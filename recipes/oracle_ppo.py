@@ -25,6 +25,8 @@ import torch
 from omegaconf import DictConfig
 
 from legoh_rl.envs.threads import torch_threads
+from legoh_rl.modules.configs import OracleConfig
+from legoh_rl.modules.oracle import oracle_network_class
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
     make_ppo_loss,
@@ -65,6 +67,7 @@ register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfi
 SETTINGS = {
     "model.init_std": Number(0, low_open=True),
     "model.max_std": Number(0, low_open=True, nullable=True),
+    "model.network": Name(),  # a name in ORACLE_NETWORKS: oracle_network_class
     "checkpoint.init": Name(nullable=True),
     "feedforward_anneal": ListOf(Integer(0), nullable=True),  # [start, end]: check_anneal
     "update_threads": Integer(1, nullable=True),
@@ -96,6 +99,10 @@ def validate(cfg: DictConfig) -> None:
     if cfg.get("update_threads") is not None:
         require_count("", cfg, "update_threads")
     require_layers("model.layers", cfg.model.get("layers"))
+    try:
+        oracle_network_class(str(cfg.model.network))
+    except ValueError as err:
+        raise ValueError(f"model.network={cfg.model.network!r}: {err}") from None
     resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.checkpoint.get("init") is not None and not Path(cfg.checkpoint.init).is_file():
@@ -111,6 +118,15 @@ def set_feedforward(env, cfg: DictConfig, frames: int) -> None:
         env.set_gait_feedforward(feedforward_gain(cfg.env.gait_feedforward, frames, cfg.feedforward_anneal))
 
 
+def check_network(state: dict, networks, path: str, what: str) -> None:
+    """Refuse a checkpoint of another oracle network than this run's ``model.network`` (a
+    checkpoint that records none holds the default, ``mlp``)."""
+    have = (state.get("oracle_config") or {}).get("network", OracleConfig.network)
+    if have != networks.cfg.network:
+        raise ValueError(f"{path} holds oracle network {have!r}: set model.network={have} to {what} "
+                         f"(this run has model.network={networks.cfg.network})")
+
+
 def init_networks(networks, env, path: str) -> None:
     """Start a fresh run from the networks of a policy file (slim export or training checkpoint)."""
     state = load_checkpoint(path)
@@ -119,6 +135,7 @@ def init_networks(networks, env, path: str) -> None:
     expected = policy_meta(env, "oracle")
     expected.pop("gait_feedforward", None)  # a warm start may go on with another gain (a later anneal stage)
     check_meta(state["meta"], expected, path)
+    check_network(state, networks, path, "start from it")
     have = (state.get("oracle_config") or {}).get("actor_layers")
     load_weights(networks, state["networks"], path, "networks",
                  f"checkpoint.init needs model.layers={list(have) if have else '<its sizes>'} (other network sizes "
@@ -207,7 +224,8 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
         raise ValueError(f"the env given delivers its tensors on {env.device}, this run has device={device}")
     layers = tuple(cfg.model.layers) if cfg.model.get("layers") is not None else None
     max_std = cfg.model.get("max_std")
-    networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std))
+    networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std),
+                                          network=str(cfg.model.network))
     networks.to(device)  # actor and critic are views of these modules
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device)
     trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
@@ -224,6 +242,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
         if cfg.get("feedforward_anneal") is not None:  # saved one batch before the gain resumes at
             expected.pop("gait_feedforward", None)
         check_meta(state["meta"], expected, path)
+        check_network(state, networks, path, "resume it")
         have = (state.get("oracle_config") or {}).get("actor_layers")
         load_weights(loss, state["loss"], path, "networks",
                      f"set model.layers={list(have) if have else '<its sizes>'} to resume it (this run has "

@@ -73,6 +73,7 @@ from legoh_rl.training.runner import Trainer
 from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 from legoh_rl.training.student import LOCOMOTIONS, make_student, student_env
+from legoh_rl.training.weight_average import PolicyAverage
 
 register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
 
@@ -105,6 +106,7 @@ SETTINGS = {
     "hlm.vae_steps": Integer(1),
     "hlm.warmup_iters": Integer(0),
     "checkpoint.branch": Name(nullable=True),
+    "checkpoint.ema_decay": Number(0, 1, low_open=True, high_open=True, nullable=True),
     "allow_new_teacher": Flag(),
 }
 #: the ppo section's keys that are this recipe's, not PPOConfig fields
@@ -259,7 +261,8 @@ class UnifiedTrainer(Trainer):
                 "critic": self.critic_nets.state_dict(), "vae": self.vae.state_dict(), "optim": self.optim.state_dict(),
                 "sched": self.sched.state_dict(), "vae_optim": self.vae_optim.state_dict(),
                 "teacher": str(self.cfg.teacher), "teacher_sha256": self.teacher_sha256,
-                "replay": None if self.replay is None else self.replay.state_dict()}
+                "replay": None if self.replay is None else self.replay.state_dict(),
+                "weight_average": None if self.average is None else self.average.state_dict()}
 
     def postfix(self, stats: dict) -> dict[str, str]:
         return {"im": f"{stats.get('loss/im_action', float('nan')):.3f}", **super().postfix(stats)}
@@ -303,6 +306,9 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
                        critic_nets=critic_nets, ppo=ppo, gae=gae, dagger=dagger, vae=vae, hlm=hlm, optim=optim,
                        sched=sched, vae_optim=vae_optim, meta=meta, teacher_sha256=file_digest(cfg.teacher),
                        device=device)
+    decay = cfg.checkpoint.get("ema_decay")
+    if decay is not None:  # snapshots of the weights' moving average beside the raw ones (training unchanged)
+        p.average = PolicyAverage({"perception": student.perception, "actor": student.actor}, float(decay))
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     branch = cfg.checkpoint.get("branch")
     if path is not None:
@@ -355,6 +361,10 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
     elif p.replay is not None:
         print(f"{path} holds no DAgger replay window (written before windows were checkpointed, or by a "
               "run without one): it starts empty")
+    if p.average is not None and exact and state.get("weight_average") is not None:
+        p.average.load_state_dict(state["weight_average"])
+    elif p.average is not None:  # a branch, or a run that had none: the average starts at these weights
+        print(f"checkpoint.ema_decay: the weight average starts at {path}'s weights")
     if exact:
         set_rng_state(state["rng"])
         p.run_id = state.get("run_id")

@@ -39,6 +39,7 @@ from legoh_rl.envs.config import HikingEnvConfig  # noqa: E402
 from legoh_rl.envs.hiking import HikingEnv  # noqa: E402
 from legoh_rl.envs.rewards import REWARD_FUNCTIONS  # noqa: E402
 from legoh_rl.kinds import Choice, Flag, Integer, ListOf, MapOf, Name, Number, OneOf, field_kind  # noqa: E402
+from legoh_rl.modules.oracle import ORACLE_NETWORKS  # noqa: E402
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS  # noqa: E402
 from legoh_rl.objectives.ppo import PPOConfig  # noqa: E402
 from legoh_rl.training.config_store import SET_BY_RECIPE, register_configs  # noqa: E402
@@ -223,6 +224,7 @@ KINDS = {
         "recipe": bad_choice(("oracle_ppo",), null=True),
         "model.init_std": bad_num(0, low_open=True),
         "model.max_std": bad_num(0, low_open=True, null=True),
+        "model.network": bad_choice(tuple(ORACLE_NETWORKS)),
         "model.layers": bad_list(st.integers(1, 64), bad_int(1), null=True),
         "checkpoint.init": bad_name(null=True),
         "feedforward_anneal": bad_list(st.integers(0, 10), bad_int(0), null=True),
@@ -257,6 +259,7 @@ KINDS = {
         "hlm.vae_steps": bad_int(1),
         "hlm.warmup_iters": bad_int(0),
         "checkpoint.branch": bad_name(null=True),
+        "checkpoint.ema_decay": bad_num(0, 1, low_open=True, high_open=True, null=True),
         "allow_new_teacher": bad_flag(),
     },
     "evaluate": {

@@ -5,15 +5,15 @@ import math
 import numpy as np
 import pytest
 
+from legoh_rl.envs import rewards
 from legoh_rl.envs.rewards import (
-    EXTRA_WEIGHTS,
-    PAPER_WEIGHTS,
     REWARD_FUNCTIONS,
+    REWARD_TERMS,
     RewardState,
     compute_rewards,
     reward_weights,
+    term,
 )
-from legoh_rl.envs.robots import ROBOTS
 
 
 def state(**kw):
@@ -34,9 +34,21 @@ def state(**kw):
     return RewardState(**base)
 
 
+# The paper's table (appendix, "Rewards' definition and weight"), H1's column, checked by hand.
+PAPER_H1 = {
+    "tracking_goal_vel": 10.0, "tracking_yaw": 0.5, "lin_vel_z": -2.0, "ang_vel_xy": -1.0, "orientation": -1.0,
+    "dof_acc": -3.5e-8, "collision": -10.0, "action_rate": -0.01, "delta_torques": -1.0e-7, "torques": -1.0e-5,
+    "hip_pos": -0.5, "dof_error": -0.04, "feet_stumble": -1.0, "feet_edge": -1.0, "feet_air_time": 1.0,
+    "base_height": -100.0,
+}
+
+
 def test_every_paper_term_has_a_function():
-    assert set(PAPER_WEIGHTS) | set(EXTRA_WEIGHTS) == set(REWARD_FUNCTIONS)
-    assert not set(EXTRA_WEIGHTS) & set(reward_weights())  # the extras are off by default
+    assert set(PAPER_H1) | {"pn_distance", "dof_pos_limits"} <= set(REWARD_FUNCTIONS)
+    assert set(REWARD_FUNCTIONS) == set(REWARD_TERMS)
+    assert all(REWARD_FUNCTIONS[n] is getattr(rewards, f"reward_{n}") for n in REWARD_TERMS)
+    extras = {"alive", "termination", "feet_clearance", "feet_slip", "gait_contact", "gait_joint_ref", "feet_in_pit"}
+    assert not extras & set(reward_weights())  # the terms beyond the table are off by default
 
 
 def test_termination_added_after_the_positive_clip():
@@ -123,12 +135,12 @@ def test_base_height_and_point_navigation():
 
 
 def test_weights_per_robot_and_dt_scaling():
-    h1 = reward_weights(ROBOTS["h1"].reward_weights)
-    g1 = reward_weights(ROBOTS["g1"].reward_weights, student=True)
-    assert h1["base_height"] == -100.0 and g1["base_height"] == -35.0
-    assert h1["feet_air_time"] == 1.0 and g1["feet_air_time"] == 0.5
-    assert "dof_pos_limits" not in h1 and g1["dof_pos_limits"] == -5.0
-    assert "pn_distance" not in h1 and g1["pn_distance"] == 1.0
+    h1 = reward_weights("h1")
+    g1 = reward_weights("g1", student=True)
+    assert h1 == PAPER_H1 and list(h1) == list(PAPER_H1)  # the order the terms are summed in
+    # G1's column differs in three rows; dof_pos_limits is on for G1 only, pn_distance for students only
+    assert g1 == {**PAPER_H1, "feet_air_time": 0.5, "base_height": -35.0, "pn_distance": 1.0, "dof_pos_limits": -5.0}
+    assert reward_weights("G1", student=True) == g1 and reward_weights() == h1
     s = state(lin_vel_w=np.array([[0, 0, 0.5], [0, 0, 0]]))
     total, terms = compute_rewards(s, {"lin_vel_z": -2.0, "tracking_yaw": 0.5})
     np.testing.assert_allclose(terms["lin_vel_z"], [-2.0 * 0.25 * 0.02, 0.0])
@@ -138,6 +150,48 @@ def test_weights_per_robot_and_dt_scaling():
 def test_unknown_override_lists_terms():
     with pytest.raises(ValueError, match=r"unknown reward term 'speed'.*tracking_yaw"):
         reward_weights(overrides={"speed": 1.0})
+    with pytest.raises(ValueError, match=r"unknown robot 'go2'.*\['g1', 'h1'\]"):
+        reward_weights("go2")
+
+
+def test_overrides_come_last_and_zero_drops_a_term():
+    w = reward_weights("g1", {"alive": 2.0, "termination": -50.0, "base_height": -10, "feet_edge": 0.0})
+    assert w["alive"] == 2.0 and w["termination"] == -50.0 and w["base_height"] == -10.0
+    assert "feet_edge" not in w and "pn_distance" not in w
+    assert list(w)[-2:] == ["alive", "termination"]  # the registry's order, not the overrides'
+
+
+def _reward_probe(s):
+    """A term for the registration tests (never registered)."""
+    return s.q[:, 0]
+
+
+@pytest.mark.parametrize(
+    "decorate, match",
+    [
+        (lambda fn: term()(fn), r"reward term 'probe' has no weight: write @term\(weight=\.\.\.\)"),
+        (lambda fn: term(fn), r"reward term 'probe' has no weight"),
+        (lambda fn: term(weight="1")(fn), r"reward term 'probe': weight must be a finite number.*'1'"),
+        (lambda fn: term(weight=float("nan"))(fn), r"reward term 'probe': weight must be a finite number"),
+        (lambda fn: term(weight=1.0, per_robot={"go2": 0.5})(fn),
+         r"reward term 'probe': per_robot names unknown robots \['go2'\]; known robots: \['g1', 'h1'\]"),
+        (lambda fn: term(weight=1.0, per_robot={"g1": None})(fn), r"reward term 'probe': per_robot\['g1'\] must be"),
+    ],
+)
+def test_a_term_without_a_weight_or_with_an_unknown_robot_is_refused(decorate, match):
+    def reward_probe(s):
+        return _reward_probe(s)
+
+    with pytest.raises(ValueError, match=match):
+        decorate(reward_probe)
+    assert "probe" not in REWARD_TERMS
+
+
+def test_a_term_is_registered_once_and_by_its_name():
+    with pytest.raises(ValueError, match=r"'tracking_yaw' is registered twice"):
+        term(weight=1.0)(rewards.reward_tracking_yaw)
+    with pytest.raises(ValueError, match=r"function '_reward_probe' must be named reward_<name>"):
+        term(weight=1.0)(_reward_probe)
 
 
 def test_feet_clearance_wants_moving_feet_lifted():

@@ -1,6 +1,8 @@
 """Terrain primitives: bounds, difficulty schedule, determinism, geometry of their features."""
 
+import ast
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -188,3 +190,40 @@ def test_unknown_primitive_and_bad_level_raise_listing_valid_values():
         make_primitive("gap", 5, 0)
     with pytest.raises(ValueError, match="valid levels"):
         make_primitive("gap", -1, 0)
+
+
+def _direct_primitive_uses(source: str) -> list[str]:
+    """What in ``source`` reaches a primitive without the registry: an import of the primitive
+    modules (or of a name from them), or a call ``make_primitive(name, ...)`` whose name is a
+    string that is not registered. Each entry names the line."""
+    modules = {"prim_terrain", "prim_obstacles"}
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom):
+            names = {a.name for a in node.names}
+            if (node.module or "").split(".")[-1] in modules or names & modules:
+                found.append(f"line {node.lineno}: imports {sorted(names)} from {node.module or '.'}")
+        elif isinstance(node, ast.Import) and any(a.name.split(".")[-1] in modules for a in node.names):
+            found.append(f"line {node.lineno}: imports {[a.name for a in node.names]}")
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "make_primitive"
+              and node.args and isinstance(node.args[0], ast.Constant) and node.args[0].value not in PRIMITIVES):
+            found.append(f"line {node.lineno}: make_primitive({node.args[0].value!r}) is not registered")
+    return found
+
+
+def test_categories_build_terrain_only_through_the_registry():
+    """``categories.py`` reaches primitives only by name through ``make_primitive`` (PRIMITIVES)."""
+    import legoh_rl.envs.trails.categories as categories
+
+    source = Path(categories.__file__).read_text()
+    assert _direct_primitive_uses(source) == []
+    assert "make_primitive(" in source
+    primitive_fns = {id(s.fn) for s in PRIMITIVES.values()}
+    leaked = [n for n, v in vars(categories).items()
+              if id(v) in primitive_fns or getattr(v, "__name__", "").endswith(("prim_terrain", "prim_obstacles"))]
+    assert leaked == []
+    # the scan itself sees each way a direct call could come back
+    assert len(_direct_primitive_uses("from . import prim_terrain as pt\npt.gap(0, rng)")) == 1
+    assert len(_direct_primitive_uses("from .prim_obstacles import log\nlog(0, rng)")) == 1
+    assert len(_direct_primitive_uses("import legoh_rl.envs.trails.prim_terrain")) == 1
+    assert len(_direct_primitive_uses('make_primitive("gapp", 0, rng)')) == 1

@@ -157,7 +157,7 @@ class HikingEnv(EnvBase, StepQuantities):
         self.max_steps = int(round(cfg.max_episode_s / self.dt))
         self.push_every = max(1, int(round(cfg.domain_rand.push_interval_s / self.dt)))
         self.randomizer = DomainRandomizer(cfg.active_domain_rand, self.worlds)
-        self.weights = reward_weights(self.robot.reward_weights, cfg.reward_overrides, student=cfg.mode != "oracle")
+        self.weights = reward_weights(cfg.robot, cfg.reward_overrides, student=cfg.mode != "oracle")
         if "feet_in_pit" in self.weights and getattr(trails, "pit_at", None) is None:
             raise ValueError(f"reward term feet_in_pit needs trails with pit_at(xy); {type(trails).__name__} has none")
         self.camera = None

@@ -2,11 +2,16 @@
 
 Each term is a function ``reward_<name>(s: RewardState) -> (N,)`` of the batched state, unweighted,
 written once for numpy arrays and torch tensors (the array API: numpy's own namespace, or
-array_api_compat's for torch, on the tensors' device);
-:data:`PAPER_WEIGHTS` holds the table's weights and :func:`compute_rewards` returns every
-weighted term (for logging) and their sum. As in legged_gym, which the paper's Isaac Gym code
-builds on, weights are multiplied by the control period ``dt`` so that the return does not depend
-on the control rate.
+array_api_compat's for torch, on the tensors' device). Each is registered by the :func:`term`
+decorator above it, which is the one home of its weights in code: its weight (the paper's table,
+or 0.0 for a term that is off unless an experiment sets it) and the robots whose weight differs
+(``per_robot``). :data:`REWARD_TERMS` lists them all; per-experiment weights are data, the config's
+``env.reward_overrides``, applied last by :func:`reward_weights`. :func:`compute_rewards` returns
+every weighted term (for logging) and their sum. As in legged_gym, which the paper's Isaac Gym
+code builds on, weights are multiplied by the control period ``dt`` so that the return does not
+depend on the control rate. "Tracking Sigma 0.5" in the paper's table is the width of
+legged_gym's exp tracking kernel, not a term: the paper's tracking terms are the linear and
+exp(-|e|) forms of Extreme Parkour.
 
 Conventions (N worlds, A leg joints):
 
@@ -60,20 +65,25 @@ paper's ``feet_edge`` only counts edges above level 3 (``feet_edge_from_level``)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from legoh_rl.envs.array_api import namespace_of
 from legoh_rl.envs.gait import stance_mask
+from legoh_rl.envs.robots import ROBOTS
 
 __all__ = [
     "RewardState",
-    "PAPER_WEIGHTS",
-    "STUDENT_ONLY",
+    "RewardTerm",
+    "REWARD_TERMS",
     "REWARD_FUNCTIONS",
+    "STUDENT_ONLY",
+    "AFTER_CLIP",
+    "term",
     "reward_weights",
-    "EXTRA_WEIGHTS",
     "compute_rewards",
 ]
 
@@ -137,11 +147,97 @@ class RewardState:
             raise ValueError(f"this reward term needs RewardState fields {missing}, which are None")
 
 
+@dataclass(frozen=True)
+class RewardTerm:
+    """One reward term and every weight it has in code.
+
+    Attributes:
+        name: the term's name (the function's without ``reward_``), the key of weights and logs.
+        fn: ``fn(s: RewardState) -> (N,)``, the unweighted term.
+        weight: its weight for every robot without a row of its own (the paper's table, or 0.0 for
+            a term that is off unless an experiment sets it).
+        per_robot: robot name (a key of :data:`legoh_rl.envs.robots.ROBOTS`) -> the weight that
+            robot uses instead (the paper's table differs per robot for a few terms).
+        student_only: kept only in student mode (dropped for the oracle).
+        after_clip: added after the ``only_positive_rewards`` clip, so that it is never clipped away.
+    """
+
+    name: str
+    fn: Callable[[RewardState], np.ndarray]
+    weight: float
+    per_robot: Mapping[str, float] = field(default_factory=dict)
+    student_only: bool = False
+    after_clip: bool = False
+
+    def weight_for(self, robot: str | None) -> float:
+        """The weight for ``robot`` (its row if it has one, else :attr:`weight`; ``None``: :attr:`weight`)."""
+        return self.weight if robot is None else self.per_robot.get(robot, self.weight)
+
+
+#: every reward term by name, in the order its weighted values are summed
+REWARD_TERMS: dict[str, RewardTerm] = {}
+
+
+def _check_weight(value, where: str) -> float:
+    """``value`` as a float, or ``ValueError`` naming ``where`` when it is not a finite number."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise ValueError(f"{where} must be a finite number (the term's weight), got {value!r}")
+    return float(value)
+
+
+def term(
+    weight: float | None = None,
+    *,
+    per_robot: Mapping[str, float] | None = None,
+    student_only: bool = False,
+    after_clip: bool = False,
+) -> Callable[[Callable], Callable]:
+    """Register ``reward_<name>`` in :data:`REWARD_TERMS` with its weight and per-robot weights.
+
+    Use as ``@term(weight=-1.0, per_robot={"g1": -0.5})`` above ``def reward_<name>(s)``; the
+    function itself is returned unchanged.
+
+    Raises:
+        ValueError: no weight (or a weight that is not a finite number), a per-robot row for a robot
+            not in :data:`legoh_rl.envs.robots.ROBOTS`, a function not named ``reward_<name>``, or a
+            name registered twice; each message names the term.
+    """
+    if callable(weight):  # bare ``@term``
+        raise ValueError(f"reward term {weight.__name__.removeprefix('reward_')!r} has no weight: "
+                         "write @term(weight=...) above it")
+
+    def register(fn: Callable) -> Callable:
+        if not fn.__name__.startswith("reward_"):
+            raise ValueError(f"reward term function {fn.__name__!r} must be named reward_<name>")
+        name = fn.__name__[len("reward_"):]
+        if name in REWARD_TERMS:
+            raise ValueError(f"reward term {name!r} is registered twice")
+        if weight is None:
+            raise ValueError(f"reward term {name!r} has no weight: write @term(weight=...) above it")
+        rows = dict(per_robot or {})
+        unknown = sorted(set(rows) - set(ROBOTS))
+        if unknown:
+            raise ValueError(f"reward term {name!r}: per_robot names unknown robots {unknown}; "
+                             f"known robots: {sorted(ROBOTS)}")
+        REWARD_TERMS[name] = RewardTerm(
+            name=name,
+            fn=fn,
+            weight=_check_weight(weight, f"reward term {name!r}: weight"),
+            per_robot={r: _check_weight(w, f"reward term {name!r}: per_robot[{r!r}]") for r, w in rows.items()},
+            student_only=student_only,
+            after_clip=after_clip,
+        )
+        return fn
+
+    return register
+
+
 def _sq_sum(x):
     """Sum of squares over the last axis, (..., K) -> (...) (one pass: ``vecdot``)."""
     return _xp(x).vecdot(x, x, axis=-1)
 
 
+@term(weight=10.0)
 def reward_tracking_goal_vel(s: RewardState):
     """min(v_target . v_t, cmd_x) / (cmd_x + eps): speed toward the current expert goal."""
     xp = _xp(s.lin_vel_w)
@@ -149,6 +245,7 @@ def reward_tracking_goal_vel(s: RewardState):
     return xp.minimum(along, s.cmd_speed) / (s.cmd_speed + EPS)
 
 
+@term(weight=0.5)
 def reward_tracking_yaw(s: RewardState):
     """exp(-|psi_target - psi_t|), the yaw error wrapped to [-pi, pi]."""
     xp = _xp(s.yaw)
@@ -157,89 +254,99 @@ def reward_tracking_yaw(s: RewardState):
     return xp.exp(-xp.abs(err))
 
 
+@term(weight=-2.0)
 def reward_lin_vel_z(s: RewardState):
     """v_z^2."""
     return s.lin_vel_w[:, 2] ** 2
 
 
+@term(weight=-1.0)
 def reward_ang_vel_xy(s: RewardState):
     """w_x^2 + w_y^2 (base frame)."""
     return _sq_sum(s.ang_vel_b[:, :2])
 
 
+@term(weight=-1.0)
 def reward_orientation(s: RewardState):
     """g_x^2 + g_y^2 of gravity in the base frame: zero when upright."""
     return _sq_sum(s.gravity_b[:, :2])
 
 
+@term(weight=-3.5e-8)
 def reward_dof_acc(s: RewardState):
     """sum ((dq_{t-1} - dq_t) / dt)^2."""
     return _sq_sum(s.dq_prev - s.dq) / s.dt**2
 
 
+@term(weight=-10.0)
 def reward_collision(s: RewardState):
     """Number of penalised (non-foot) bodies with a contact force above 0.1 N."""
     return _float(_xp(s.penalised_force).count_nonzero(_sq_sum(s.penalised_force) > 0.1**2, axis=1), s)
 
 
+@term(weight=-0.01)
 def reward_action_rate(s: RewardState):
     """||a_{t-1} - a_t|| (L2 norm, as the paper writes it)."""
     return _xp(s.action).sqrt(_sq_sum(s.action_prev - s.action))
 
 
+@term(weight=-1.0e-7)
 def reward_delta_torques(s: RewardState):
     """sum (tau_t - tau_{t-1})^2."""
     return _sq_sum(s.torques - s.torques_prev)
 
 
+@term(weight=-1.0e-5)
 def reward_torques(s: RewardState):
     """sum tau_t^2."""
     return _sq_sum(s.torques)
 
 
+@term(weight=-0.5)
 def reward_hip_pos(s: RewardState):
     """sum over hip yaw/roll joints of (q - q_default)^2."""
     return _sq_sum((s.q - s.q_default)[:, s.hip_idx])
 
 
+@term(weight=-0.04)
 def reward_dof_error(s: RewardState):
     """sum (q - q_default)^2 over all leg joints."""
     return _sq_sum(s.q - s.q_default)
 
 
+@term(weight=-1.0)
 def reward_feet_stumble(s: RewardState):
     """1 if any foot's horizontal contact force exceeds 4x its vertical one (hitting a riser)."""
     horiz2 = _sq_sum(s.foot_force[..., :2])  # |F_xy| > 4 |F_z|  <=>  |F_xy|^2 > 16 F_z^2
     return _float(_xp(horiz2).any(horiz2 > 16.0 * s.foot_force[..., 2] ** 2, axis=1), s)
 
 
+@term(weight=-1.0)
 def reward_feet_edge(s: RewardState):
     """(terrain_level >= feet_edge_from_level) * number of feet in contact on an edge cell (the
     paper's gate is terrain_level > 3, the default ``feet_edge_from_level`` = 4)."""
     return _float(s.terrain_level >= s.feet_edge_from_level, s) * _xp(s.q).sum(_float(s.feet_at_edge, s), axis=1)
 
 
-def reward_feet_in_pit(s: RewardState):
-    """Number of feet in contact over a pit sample (not in the paper's table; weight 0 unless set)."""
-    s.require("feet_in_pit")
-    return _xp(s.q).sum(_float(s.feet_in_pit, s), axis=1)
-
-
+@term(weight=1.0, per_robot={"g1": 0.5})
 def reward_feet_air_time(s: RewardState):
     """sum over feet touching down of (T_air - 0.5): rewards steps longer than 0.5 s."""
     return _xp(s.q).sum((s.feet_air_time - 0.5) * _float(s.first_contact, s), axis=1)
 
 
+@term(weight=-100.0, per_robot={"g1": -35.0})
 def reward_base_height(s: RewardState):
     """(h_base - h_target)^2, h_base above the terrain under the base."""
     return (s.base_height - s.base_height_target) ** 2
 
 
+@term(weight=1.0, student_only=True)
 def reward_pn_distance(s: RewardState):
     """Point-navigation distance (unified training only): 1 inside the reach radius, else -0.75 d."""
     return _xp(s.goal_dist).where(s.goal_dist < s.reach_radius, 1.0, -0.75 * s.goal_dist)
 
 
+@term(weight=0.0, per_robot={"g1": -5.0})
 def reward_dof_pos_limits(s: RewardState):
     """sum(-min(0, q - q_low) + max(0, q - q_up)): how far joints are past their soft limits."""
     xp = _xp(s.q)
@@ -248,6 +355,19 @@ def reward_dof_pos_limits(s: RewardState):
     return xp.sum(low + up, axis=1)
 
 
+@term(weight=0.0)
+def reward_alive(s: RewardState):
+    """1 per step (not in the paper's table; weight 0 unless set)."""
+    return _xp(s.q).ones_like(s.q[:, 0])
+
+
+@term(weight=0.0, after_clip=True)
+def reward_termination(s: RewardState):
+    """1 when the episode ends by a fall (not in the paper's table; weight 0 unless set)."""
+    return _xp(s.q).zeros_like(s.q[:, 0]) if s.fell is None else _float(s.fell, s)
+
+
+@term(weight=0.0)
 def reward_feet_clearance(s: RewardState):
     """sum over feet of (lift - swing_height)^2 * sqrt(|v_xy|): moving feet should be lifted."""
     s.require("foot_lift", "foot_vel_xy")
@@ -256,6 +376,7 @@ def reward_feet_clearance(s: RewardState):
     return xp.sum((s.foot_lift - s.swing_height) ** 2 * xp.sqrt(speed), axis=1)
 
 
+@term(weight=0.0)
 def reward_feet_slip(s: RewardState):
     """sum over feet in contact of |v_xy|: feet on the ground should not slide (a shuffle does)."""
     s.require("feet_contact", "foot_vel_xy")
@@ -263,12 +384,14 @@ def reward_feet_slip(s: RewardState):
     return xp.sum(xp.sqrt(_sq_sum(s.foot_vel_xy)) * _float(s.feet_contact, s), axis=1)
 
 
+@term(weight=0.0)
 def reward_gait_contact(s: RewardState):
     """Number of feet (0-2) whose contact state matches the gait clock's stance/swing pattern."""
     s.require("feet_contact", "gait_phase")
     return _xp(s.q).sum(_float(s.feet_contact == stance_mask(s.gait_phase, s.gait_stance), s), axis=1)
 
 
+@term(weight=0.0)
 def reward_gait_joint_ref(s: RewardState):
     """exp(-2 ||q - q_ref||) - 0.2 min(||q - q_ref||, 0.5): leg joints that follow the clock's
     swing reference ``q_ref = q_default + swing_reference`` (Humanoid-Gym's joint-position term)."""
@@ -278,71 +401,46 @@ def reward_gait_joint_ref(s: RewardState):
     return xp.exp(-2.0 * d) - 0.2 * xp.minimum(d, 0.5)
 
 
-def reward_alive(s: RewardState):
-    """1 per step (not in the paper's table; weight 0 unless set)."""
-    return _xp(s.q).ones_like(s.q[:, 0])
+@term(weight=0.0)
+def reward_feet_in_pit(s: RewardState):
+    """Number of feet in contact over a pit sample (not in the paper's table; weight 0 unless set)."""
+    s.require("feet_in_pit")
+    return _xp(s.q).sum(_float(s.feet_in_pit, s), axis=1)
 
 
-def reward_termination(s: RewardState):
-    """1 when the episode ends by a fall (not in the paper's table; weight 0 unless set)."""
-    return _xp(s.q).zeros_like(s.q[:, 0]) if s.fell is None else _float(s.fell, s)
-
-
-REWARD_FUNCTIONS = {
-    name[len("reward_") :]: fn for name, fn in list(globals().items()) if name.startswith("reward_") and callable(fn)
-}
-
-# The paper's table. Per-robot rows (feet_air_time, base_height, dof_pos_limits) come from the
-# RobotSpec. "Tracking Sigma 0.5" in the table is the width of legged_gym's exp tracking kernel,
-# not a term: the paper's tracking terms above are the linear/exp(-|e|) forms of Extreme Parkour.
-PAPER_WEIGHTS: dict[str, float] = {
-    "tracking_goal_vel": 10.0,
-    "tracking_yaw": 0.5,
-    "lin_vel_z": -2.0,
-    "ang_vel_xy": -1.0,
-    "orientation": -1.0,
-    "dof_acc": -3.5e-8,
-    "collision": -10.0,
-    "action_rate": -0.01,
-    "delta_torques": -1.0e-7,
-    "torques": -1.0e-5,
-    "hip_pos": -0.5,
-    "dof_error": -0.04,
-    "feet_stumble": -1.0,
-    "feet_edge": -1.0,
-    "feet_air_time": 1.0,
-    "base_height": -100.0,
-    "pn_distance": 1.0,
-    "dof_pos_limits": 0.0,
-}
-STUDENT_ONLY = frozenset({"pn_distance"})
-# legged_gym "basic elements", not in the paper's table: off unless a recipe sets them
-EXTRA_WEIGHTS: dict[str, float] = {
-    "alive": 0.0, "termination": 0.0, "feet_clearance": 0.0, "feet_slip": 0.0, "gait_contact": 0.0,
-    "gait_joint_ref": 0.0, "feet_in_pit": 0.0,
-}
-# added after the only_positive_rewards clip
-AFTER_CLIP = frozenset({"termination"})
+REWARD_FUNCTIONS: dict[str, Callable[[RewardState], np.ndarray]] = {n: t.fn for n, t in REWARD_TERMS.items()}
+STUDENT_ONLY = frozenset(n for n, t in REWARD_TERMS.items() if t.student_only)
+AFTER_CLIP = frozenset(n for n, t in REWARD_TERMS.items() if t.after_clip)
 
 
 def reward_weights(
-    robot_weights: dict[str, float] | None = None,
-    overrides: dict[str, float] | None = None,
+    robot: str | None = None,
+    overrides: Mapping[str, float] | None = None,
     student: bool = False,
 ) -> dict[str, float]:
-    """The weights in force: the paper's table, then the robot's rows, then user overrides.
+    """The weights in force: each term's weight, the robot's own where it has one, then ``overrides``.
 
-    Terms with weight 0 are dropped; ``pn_distance`` is kept only when ``student`` is True.
+    Args:
+        robot: a key of :data:`legoh_rl.envs.robots.ROBOTS` (case-insensitive), or ``None`` for the
+            terms' weights without any robot's rows.
+        overrides: term -> weight (an experiment's ``env.reward_overrides``), applied last.
+        student: keep the :data:`STUDENT_ONLY` terms.
+
+    Returns:
+        term -> weight in :data:`REWARD_TERMS`' order, terms with weight 0 dropped.
 
     Raises:
-        ValueError: an override names an unknown term (the message lists the known ones).
+        ValueError: an unknown robot or an override naming an unknown term (each message lists the
+            known ones).
     """
-    weights = dict(PAPER_WEIGHTS)
-    weights.update(EXTRA_WEIGHTS)
-    weights.update(robot_weights or {})
+    if robot is not None:
+        robot = str(robot).lower()
+        if robot not in ROBOTS:
+            raise ValueError(f"unknown robot {robot!r} for the reward weights; known robots: {sorted(ROBOTS)}")
+    weights = {name: t.weight_for(robot) for name, t in REWARD_TERMS.items()}
     for name, value in (overrides or {}).items():
-        if name not in REWARD_FUNCTIONS:
-            raise ValueError(f"unknown reward term {name!r}; known terms: {sorted(REWARD_FUNCTIONS)}")
+        if name not in REWARD_TERMS:
+            raise ValueError(f"unknown reward term {name!r}; known terms: {sorted(REWARD_TERMS)}")
         weights[name] = float(value)
     if not student:
         for name in STUDENT_ONLY:

@@ -3,8 +3,8 @@
 A :class:`RobotSpec` holds everything the env needs to know about a robot: its leg joints in a
 fixed order (the order of actions and of every per-joint observation), the default pose, the PD
 gains and torque limits, the bodies that matter (base, torso, feet, bodies whose contacts are
-penalised), the head depth camera mount, the target base height and the reward weights where the
-paper's table differs per robot.
+penalised), the head depth camera mount and the target base height. The reward weights that differ
+per robot are declared with their terms (``per_robot`` in :mod:`legoh_rl.envs.rewards`).
 
 :func:`build_model` rebuilds the MuJoCo Menagerie model with :class:`mujoco.MjSpec`:
 
@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -87,7 +87,6 @@ class RobotSpec:
         foot_rest_height: height of a foot body's origin above flat ground when the robot stands
             on it, m (measured in simulation; the zero of the clearance reward's foot lift).
         action_scale: q* = q_default + action_scale * action.
-        reward_weights: weights of the paper's reward table that differ for this robot.
         foot_sphere_radius: radius given to the sphere colliders of the foot bodies, m, their
             centres raised by the growth so the sole plane (and ``foot_rest_height``) stays where
             the model put it; ``None`` keeps the model's spheres. G1's Menagerie soles are four
@@ -119,7 +118,6 @@ class RobotSpec:
     spawn_height: float
     foot_rest_height: float
     action_scale: float = 0.25
-    reward_weights: dict[str, float] = field(default_factory=dict)
     foot_sphere_radius: float | None = None
 
     def __post_init__(self) -> None:
@@ -178,7 +176,6 @@ _H1 = RobotSpec(
     base_height_target=1.05,
     spawn_height=1.04,
     foot_rest_height=0.065,
-    reward_weights={"feet_air_time": 1.0, "base_height": -100.0, "dof_pos_limits": 0.0},
 )
 
 _G1 = RobotSpec(
@@ -215,7 +212,6 @@ _G1 = RobotSpec(
     base_height_target=0.78,
     spawn_height=0.80,
     foot_rest_height=0.035,
-    reward_weights={"feet_air_time": 0.5, "base_height": -35.0, "dof_pos_limits": -5.0},
     foot_sphere_radius=0.02,
 )
 

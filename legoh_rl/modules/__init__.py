@@ -35,10 +35,13 @@ from legoh_rl.modules.locomotion import (
 from legoh_rl.modules.masked_vae import MaskedVAE, MaskedVAEConfig, make_masked_vae_module
 from legoh_rl.modules.mlp import build_mlp, unit_normalize
 from legoh_rl.modules.oracle import (
+    ORACLE_NETWORKS,
     OracleNetworks,
     make_oracle_actor,
     make_oracle_actor_critic,
     make_oracle_critic,
+    make_oracle_networks,
+    register_oracle_network,
 )
 from legoh_rl.modules.perception import (
     PERCEPTION_BUILDERS,
@@ -66,6 +69,9 @@ __all__ = [
     "OracleConfig",
     "OracleKeys",
     "OracleNetworks",
+    "ORACLE_NETWORKS",
+    "make_oracle_networks",
+    "register_oracle_network",
     "PERCEPTION_BUILDERS",
     "PerceptionConfig",
     "PerceptionHeads",

@@ -374,6 +374,10 @@ class OracleConfig:
             (default) keeps the linear head unbounded like rsl_rl.
         share_encoders: the critic reuses the actor's scandot/privileged encoders (``True``)
             or has its own copies (``False``, default; like rsl_rl's separate networks).
+        network: the name of the network class in
+            :data:`legoh_rl.modules.oracle.ORACLE_NETWORKS` (``"mlp"``: the paper's
+            :class:`~legoh_rl.modules.oracle.OracleNetworks`); a checkpoint that records none
+            was made with ``"mlp"``.
     """
 
     proprio_dim: int
@@ -393,9 +397,12 @@ class OracleConfig:
     max_std: float | None = None
     loc_bound: float | None = None
     share_encoders: bool = False
+    network: str = "mlp"
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
+        if not isinstance(self.network, str) or not self.network:
+            raise ValueError(f"OracleConfig.network must be a registered network's name, got {self.network!r}")
         for name in ("proprio_dim", "num_actions", "privileged_dim", "scandots_dim",
                      "num_goals", "init_std"):
             _positive(f"OracleConfig.{name}", getattr(self, name))

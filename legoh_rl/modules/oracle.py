@@ -12,6 +12,12 @@ Paper appendix "Network Architectures":
 only reading that also works for the critic (whose value is unbounded). Action means are
 therefore unbounded by default and the env applies ``q* = q_default + 0.25 a`` and its
 clip; ``OracleConfig.loc_bound`` optionally bounds them with ``bound * tanh``.
+
+Networks by name: :data:`ORACLE_NETWORKS` maps ``OracleConfig.network`` (the recipe's
+``model.network``) to a class built as ``cls(cfg)``; ``"mlp"`` is :class:`OracleNetworks`. Plug in
+your own with :func:`register_oracle_network` (as rsl_rl's runner takes a ``class_name``); the
+recipe, the checkpoints (``oracle_config["network"]``), evaluation, the teacher and the ONNX export
+then build it by that name through :func:`make_oracle_networks`.
 """
 
 from __future__ import annotations
@@ -27,12 +33,17 @@ from legoh_rl.modules.keys import OracleKeys
 from legoh_rl.modules.mlp import build_mlp
 
 __all__ = [
+    "ORACLE_NETWORKS",
+    "ORACLE_NETWORK_PARTS",
     "OracleActorNet",
     "OracleCriticNet",
     "OracleNetworks",
     "make_oracle_actor",
     "make_oracle_actor_critic",
     "make_oracle_critic",
+    "make_oracle_networks",
+    "oracle_network_class",
+    "register_oracle_network",
 ]
 
 
@@ -98,7 +109,11 @@ class OracleNetworks(nn.Module):
     Attributes:
         scandot_encoder: ``(*B, 132) -> (*B, 32)``. priv_encoder: ``(*B, P) -> (*B, 20)``.
         actor: :class:`OracleActorNet`. critic: :class:`OracleCriticNet`.
+        actor_class: the class of ``actor``, built as ``actor_class(cfg)`` (a subclass that
+            replaces the actor sets it; the student's frozen-oracle locomotion builds the actor alone).
     """
+
+    actor_class: type[nn.Module] = OracleActorNet
 
     def __init__(self, cfg: OracleConfig) -> None:
         super().__init__()
@@ -108,7 +123,7 @@ class OracleNetworks(nn.Module):
                                          last_activation=cfg.encoder_out_activation)
         self.priv_encoder = build_mlp(cfg.privileged_dim, cfg.priv_layers, cfg.activation,
                                       last_activation=cfg.priv_out_activation)
-        self.actor = OracleActorNet(cfg)
+        self.actor = self.actor_class(cfg)
         if cfg.share_encoders:
             critic_scan, critic_priv = self.scandot_encoder, self.priv_encoder
         else:
@@ -117,6 +132,75 @@ class OracleNetworks(nn.Module):
             critic_priv = build_mlp(cfg.privileged_dim, cfg.priv_layers, cfg.activation,
                                     last_activation=cfg.priv_out_activation)
         self.critic = OracleCriticNet(cfg, critic_scan, critic_priv)
+
+
+#: oracle network classes by name (``OracleConfig.network``, the recipe's ``model.network``)
+ORACLE_NETWORKS: dict[str, type[nn.Module]] = {}
+
+#: what every oracle network has (the contract of :class:`OracleNetworks`):
+#: ``cfg`` its :class:`OracleConfig`;
+#: ``scandot_encoder`` ``scandots (*B, S) -> z_tea (*B, cfg.latent_dim)``;
+#: ``priv_encoder`` ``privileged (*B, P) -> priv_latent (*B, cfg.priv_latent_dim)``;
+#: ``actor`` ``(proprio, z_tea, priv_latent, expert_goals (*B, N, 2)) -> (loc, scale) (*B, A)``,
+#: whose ``head`` is a :class:`~legoh_rl.modules.distributions.GaussianHead` (the teacher reads
+#: its std); ``critic`` ``(proprio, scandots, privileged, expert_goals) -> state_value (*B, 1)``.
+#: ``actor_class`` builds the actor alone as ``actor_class(cfg)``.
+ORACLE_NETWORK_PARTS = ("cfg", "scandot_encoder", "priv_encoder", "actor", "critic", "actor_class")
+
+
+def register_oracle_network(name: str, cls: type[nn.Module] | None = None):
+    """Register an oracle network class under ``name`` (also usable as ``@register_oracle_network(name)``).
+
+    ``cls(cfg: OracleConfig)`` must build an ``nn.Module`` with the parts of
+    :data:`ORACLE_NETWORK_PARTS`; subclassing :class:`OracleNetworks` and replacing some of them is
+    the short way. Returns ``cls``.
+
+    Raises:
+        ValueError: ``name`` is empty or not a string, names another class already, or ``cls``
+            is not an ``nn.Module`` subclass.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"an oracle network's name must be a non-empty string, got {name!r}")
+
+    def register(c: type[nn.Module]) -> type[nn.Module]:
+        if not (isinstance(c, type) and issubclass(c, nn.Module)):
+            raise ValueError(f"oracle network {name!r} must be an nn.Module subclass, got {c!r}")
+        if ORACLE_NETWORKS.get(name, c) is not c:
+            raise ValueError(f"oracle network {name!r} is already registered ({ORACLE_NETWORKS[name].__qualname__})")
+        ORACLE_NETWORKS[name] = c
+        return c
+
+    return register if cls is None else register(cls)
+
+
+register_oracle_network("mlp", OracleNetworks)
+
+
+def oracle_network_class(name: str) -> type[nn.Module]:
+    """The class registered as ``name`` in :data:`ORACLE_NETWORKS`.
+
+    Raises:
+        ValueError: an unregistered name (the message lists the registered ones).
+    """
+    if name not in ORACLE_NETWORKS:
+        raise ValueError(f"unknown oracle network {name!r}; registered: {sorted(ORACLE_NETWORKS)} "
+                         "(register_oracle_network in legoh_rl.modules.oracle adds one)")
+    return ORACLE_NETWORKS[name]
+
+
+def make_oracle_networks(cfg: OracleConfig) -> nn.Module:
+    """The oracle network ``cfg.network`` (a key of :data:`ORACLE_NETWORKS`), untrained.
+
+    Raises:
+        ValueError: an unregistered name (the message lists the registered ones), or a class
+            whose instance lacks a part of :data:`ORACLE_NETWORK_PARTS` (named).
+    """
+    networks = oracle_network_class(cfg.network)(cfg)
+    missing = [p for p in ORACLE_NETWORK_PARTS if not hasattr(networks, p)]
+    if missing:
+        raise ValueError(f"oracle network {cfg.network!r} ({type(networks).__qualname__}) lacks {missing}: "
+                         f"an oracle network has {list(ORACLE_NETWORK_PARTS)} (see OracleNetworks)")
+    return networks
 
 
 def make_oracle_actor(
@@ -183,5 +267,5 @@ def make_oracle_actor_critic(
     encoder, build ``networks = OracleNetworks(cfg)`` once and call
     ``make_oracle_actor(networks, keys, priv_latent_module=adaptation)``.
     """
-    networks = networks if networks is not None else OracleNetworks(cfg)
+    networks = networks if networks is not None else make_oracle_networks(cfg)
     return make_oracle_actor(networks, keys), make_oracle_critic(networks, keys)

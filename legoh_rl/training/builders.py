@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 
 import torch
@@ -10,7 +11,7 @@ from omegaconf import DictConfig, OmegaConf
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.kinds import check_fields
 from legoh_rl.modules.configs import OracleConfig
-from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic
+from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor_critic, make_oracle_networks
 from legoh_rl.objectives.ppo import PPOConfig
 from legoh_rl.training.config_checks import (
     Choice,
@@ -132,7 +133,7 @@ def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, d
 
 def oracle_networks(state: dict) -> OracleNetworks:
     """The trained networks of an oracle checkpoint (its ``oracle_config`` and ``networks``)."""
-    networks = OracleNetworks(OracleConfig(**state["oracle_config"]))
+    networks = make_oracle_networks(OracleConfig(**state["oracle_config"]))
     networks.load_state_dict(state["networks"])
     return networks
 
@@ -156,10 +157,10 @@ def oracle_config(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...]
 
 
 def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] | None = None,
-                max_std: float | None = None):
-    """``(networks, actor, critic)`` of the oracle sized for ``env``."""
-    ocfg = oracle_config(env, init_std, layers, max_std)
-    networks = OracleNetworks(ocfg)
+                max_std: float | None = None, network: str = "mlp"):
+    """``(networks, actor, critic)`` of the oracle sized for ``env``; ``network``: a name in ``ORACLE_NETWORKS``."""
+    ocfg = dataclasses.replace(oracle_config(env, init_std, layers, max_std), network=network)
+    networks = make_oracle_networks(ocfg)
     actor, critic = make_oracle_actor_critic(ocfg, networks=networks)
     return networks, actor, critic
 

@@ -337,15 +337,26 @@ def resume_path(resume: str | None, run_dir: str | os.PathLike) -> Path | None:
 POLICY_KEYS = ("meta", "oracle_config", "networks", "perception", "actor", "config", "iteration", "frames")
 
 
-def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: dict | None = None) -> Path:
+def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: dict | None = None,
+                  weights: dict | None = None) -> Path:
     """Write a slim copy of a training checkpoint: the policy without optimisers, env or RNG state.
 
     The result loads wherever the full checkpoint does for inference (``evaluate.py``, or as the
     teacher of ``unified.py``), and is small enough to commit. ``provenance`` (``experiment``,
-    ``stage``) is written into its meta block, for checkpoints trained before runs recorded it.
+    ``stage``, or ``weights`` naming an average) is written into its meta block, for checkpoints
+    trained before runs recorded it. ``weights`` (``{"perception": state dict, "actor": ...}``)
+    replaces those entries: a weight average's snapshot
+    (:class:`~legoh_rl.training.weight_average.PolicyAverage`).
+
+    Raises:
+        CheckpointError: ``weights`` names an entry the checkpoint does not hold.
     """
     state = load_checkpoint(src)
     slim = {k: state[k] for k in POLICY_KEYS if k in state}
     if provenance:
         slim["meta"] = {**slim.get("meta", {}), **provenance}
+    for key, value in (weights or {}).items():
+        if key not in slim:
+            raise CheckpointError(f"{src} holds no {key!r} weights to replace (it has {sorted(slim)})")
+        slim[key] = value
     return save_checkpoint(dst, slim)

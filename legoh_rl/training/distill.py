@@ -13,7 +13,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-from legoh_rl.modules.oracle import OracleNetworks, make_oracle_actor, make_oracle_critic
+from legoh_rl.modules.oracle import make_oracle_actor, make_oracle_critic, make_oracle_networks
 from legoh_rl.training.builders import oracle_networks
 from legoh_rl.training.checkpoint import load_checkpoint
 
@@ -68,7 +68,7 @@ class Teacher:
     def make_critic(self):
         """A critic with the oracle's architecture and trained weights (asymmetric: it reads the
         privileged observations, which exist only in simulation, as in the oracle stage)."""
-        networks = OracleNetworks(self.networks.cfg).to(self.device)
+        networks = make_oracle_networks(self.networks.cfg).to(self.device)
         networks.load_state_dict(self.networks.state_dict())
         networks.requires_grad_(True)
         return make_oracle_critic(networks), networks

@@ -24,7 +24,9 @@ once:
 * every ``checkpoint.snapshot_every`` iterations (0: never), a slim copy of the policy
   (:func:`~legoh_rl.training.checkpoint.export_policy`) goes to
   ``<checkpoint.dir>/snapshots/frames<run frames>.pt``: the learning curve's points, evaluated
-  later on the benchmark (``recipes/evaluate.py``);
+  later on the benchmark (``recipes/evaluate.py``); with ``checkpoint.ema_decay`` the trainer's
+  weight average (:mod:`~legoh_rl.training.weight_average`, updated after every iteration) goes
+  beside it to ``snapshots/ema/``;
 * every ``logger.video_every`` iterations (0: never), a video of the checkpoint's policy, one
   robot per category at the worlds' median level (:func:`~legoh_rl.training.videos.policy_video`),
   goes to ``<checkpoint.dir>/videos/`` and the wandb run.
@@ -54,6 +56,7 @@ from legoh_rl.training.interrupt import GracefulStop
 from legoh_rl.training.run_dir import open_run_dir
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.videos import policy_video
+from legoh_rl.training.weight_average import PolicyAverage
 from legoh_rl.training.workers import WorkerEnvs, check_workers, make_worker_collector
 
 __all__ = ["Trainer", "train", "provenance", "finish", "collector_workers", "collector_backend"]
@@ -72,6 +75,8 @@ class Trainer(ABC):
         desc: the progress bar's label.
         collector_kwargs: extra keyword arguments of the collector.
         device: where the networks, losses and updates are (the resolved ``device`` setting).
+        average: the EMA of the policy's weights that snapshots also write (``checkpoint.ema_decay``),
+            or ``None``; the recipe builds it, checkpoints it in :meth:`state_dict` and restores it.
         env_wrap: ``collect_env = env_wrap(env)`` (``None``: ``collect_env`` is ``env``); with
             ``collector.workers > 1`` (or ``collector.backend=ray``) each worker wraps its own slice
             of the worlds with it, so it must be picklable (a module-level function or a
@@ -89,6 +94,7 @@ class Trainer(ABC):
     collector_kwargs: dict = {}
     device: torch.device = torch.device("cpu")
     env_wrap: Callable | None = None
+    average: PolicyAverage | None = None
 
     def before_collect(self) -> None:  # noqa: B027 (optional hook: most trainers have no schedule)
         """Set what the next batch is collected with (schedules over ``frames`` / ``iteration``)."""
@@ -174,6 +180,8 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
             started = time.perf_counter()
             collect_s = started - collected
             stats = t.update(data)
+            if t.average is not None:  # reads the trained weights only: training is unchanged
+                t.average.update()
             collector.update_policy_weights_()  # Ray: the trained policy's weights, sent to every worker
             t.iteration += 1
             t.frames += data.numel()
@@ -190,7 +198,11 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
             if snapshot_every and t.iteration % snapshot_every == 0:  # the policy as it was, for later evaluation
                 if t.iteration % cfg.checkpoint.every:
                     checkpoint()
-                export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / f"frames{t.frames:09d}.pt")
+                name = f"frames{t.frames:09d}.pt"
+                export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / name)
+                if t.average is not None:
+                    export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / "ema" / name,
+                                  provenance={"weights": f"ema {t.average.decay}"}, weights=t.average.policy_state())
             if video_every and t.iteration % video_every == 0:
                 path = checkpoint() if t.iteration % cfg.checkpoint.every else ckpt_dir / "last.pt"
                 run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",

@@ -22,7 +22,7 @@ from legoh_rl.envs import HikingEnv
 from legoh_rl.modules.configs import LocomotionConfig, OracleConfig, perception_config
 from legoh_rl.modules.keys import PerceptionKeys
 from legoh_rl.modules.locomotion import make_locomotion_actor, make_oracle_locomotion_actor
-from legoh_rl.modules.oracle import OracleActorNet
+from legoh_rl.modules.oracle import oracle_network_class
 from legoh_rl.modules.perception import make_perception
 from legoh_rl.transforms import DepthHistory, GoalTiling, PerceptionHold
 
@@ -85,7 +85,7 @@ def student_networks(perception: str, preset: str, proprio_dim: int, image_size:
     bad = {k: (have[k], want[k]) for k in want if have[k] != want[k]}
     if bad:
         raise ValueError(f"the oracle's actor cannot be the student's locomotion: sizes (oracle, student) {bad}")
-    return perc, make_oracle_locomotion_actor(OracleActorNet(ocfg)), pcfg
+    return perc, make_oracle_locomotion_actor(oracle_network_class(ocfg.network).actor_class(ocfg)), pcfg
 
 
 def hold_keys(perception) -> tuple[str, ...]:

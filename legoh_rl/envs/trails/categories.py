@@ -1,5 +1,9 @@
 """The five trail categories (and the out-of-domain hill) composed from the primitives.
 
+Every primitive is built by name through the registry (:func:`.primitives.make_primitive`, which
+reads :data:`.primitives.PRIMITIVES`), never by calling its function: the registry is the one list
+of primitives, and ``tests/test_trails_primitives.py`` fails if a direct call comes back.
+
 A category *body* fills the canvas from its cursor up to sample ``end`` and returns its goal plan
 (Spots / EvenSegments in route order, see :mod:`.goals`). ``entry`` and ``exit`` are the route
 anchors around the body (P_A and P_B for a whole tile, section ends inside a hill trail).
@@ -23,14 +27,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import prim_obstacles as po
-from . import prim_terrain as pt
 from .canvas import TileCanvas
 from .config import CATEGORIES, FOREST_PLAN_CLEARANCE
 from .goals import EvenSegment, GoalChecker, plan_path, resample_path
 from .levels import PARAMS, sample_friction
 from .obstacles import Obstacle, make_box, make_rock, make_trunk
 from .patch import Patch, Spot
+from .primitives import make_primitive
 
 __all__ = ["BODIES", "KEY_PARAMS"]
 
@@ -100,9 +103,9 @@ def _mound(
     theta = PARAMS["slope_deg"].sample(level, rng)
     ramp = rng.uniform(1.0, 1.5)
     return [
-        pt.slope_up(level, rng, w, res, angle_deg=theta, ramp=ramp, route_y=route_y),
-        pt.flat(level, rng, w, res, length=rng.uniform(0.3, 0.6)),
-        pt.slope_down(level, rng, w, res, angle_deg=theta, ramp=ramp, route_y=route_y),
+        make_primitive("slope_up", level, rng, w, res, angle_deg=theta, ramp=ramp, route_y=route_y),
+        make_primitive("flat", level, rng, w, res, length=rng.uniform(0.3, 0.6)),
+        make_primitive("slope_down", level, rng, w, res, angle_deg=theta, ramp=ramp, route_y=route_y),
     ]
 
 
@@ -111,9 +114,9 @@ def _stairs_pair(level: int, rng: np.random.Generator, w: float, res: float) -> 
     tr = PARAMS["stair_tread"].sample(level, rng)
     k = int(rng.integers(3, 5))
     return [
-        pt.stairs_up(level, rng, w, res, step_height=hs, tread=tr, steps=k),
-        pt.flat(level, rng, w, res, length=rng.uniform(0.3, 0.6)),
-        pt.stairs_down(level, rng, w, res, step_height=hs, tread=tr, steps=k),
+        make_primitive("stairs_up", level, rng, w, res, step_height=hs, tread=tr, steps=k),
+        make_primitive("flat", level, rng, w, res, length=rng.uniform(0.3, 0.6)),
+        make_primitive("stairs_down", level, rng, w, res, step_height=hs, tread=tr, steps=k),
     ]
 
 
@@ -122,7 +125,7 @@ def _gap_maker(level: int, w: float, res: float, first_sign: float, widen: float
 
     def make(g: np.random.Generator, y: float, k: int) -> list[Patch]:
         off = PARAMS["platform_offset"].sample(level, g) * first_sign * (1 if k % 2 == 0 else -1)
-        return [pt.gap(level, g, w, res, offset=off, route_y=y, widen=widen)]
+        return [make_primitive("gap", level, g, w, res, offset=off, route_y=y, widen=widen)]
 
     return make
 
@@ -138,11 +141,11 @@ def body_randommix(
     sign = 1.0 if rng.random() < 0.5 else -1.0
     pool: dict[str, Maker] = {
         "stairs": lambda g, y, k: _stairs_pair(level, g, w, res),
-        "platform": lambda g, y, k: [pt.platform(level, g, w, res)],
+        "platform": lambda g, y, k: [make_primitive("platform", level, g, w, res)],
         "gap": _gap_maker(level, w, res, sign, 0.0),
-        "log": lambda g, y, k: [po.log(level, g, w, res)],
-        "rocks": lambda g, y, k: [po.rocks(level, g, w, res)],
-        "rough": lambda g, y, k: [pt.rough(level, g, w, res)],
+        "log": lambda g, y, k: [make_primitive("log", level, g, w, res)],
+        "rocks": lambda g, y, k: [make_primitive("rocks", level, g, w, res)],
+        "rough": lambda g, y, k: [make_primitive("rough", level, g, w, res)],
     }
     names = ["mound"] + [str(n) for n in rng.permutation(list(pool))]
     order = rng.permutation(len(names))
@@ -173,7 +176,7 @@ def body_ditch(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, e
     required: list[bool] = []
     for kind in kinds:
         if kind == "ditch":
-            makers.append(lambda g, y, k: [pt.ditch(level, g, w, res, route_y=y)])
+            makers.append(lambda g, y, k: [make_primitive("ditch", level, g, w, res, route_y=y)])
         elif kind == "gap":
             makers.append(gap_make)
         else:
@@ -198,9 +201,9 @@ def body_hurdle(
         "platform" if rng.random() < 0.2 else "hurdle" for _ in range(6)
     ]
     makers: list[Maker] = [
-        (lambda g, y, k: [po.hurdle(level, g, w, res, route_y=y)])
+        (lambda g, y, k: [make_primitive("hurdle", level, g, w, res, route_y=y)])
         if kind == "hurdle"
-        else (lambda g, y, k: [pt.platform(level, g, w, res, route_y=y)])
+        else (lambda g, y, k: [make_primitive("platform", level, g, w, res, route_y=y)])
         for kind in kinds
     ]
     ys = rng.uniform(-0.4, 0.4, size=len(kinds))
@@ -229,8 +232,7 @@ def body_gap(cv: TileCanvas, end: int, level: int, rng: np.random.Generator, ent
             makers.append(gap_make)
             family = "gap"
         else:
-            fn = pt.stepping_stones if kind == "stepping_stones" else pt.staggered_stones
-            makers.append(lambda g, y, k, fn=fn: [fn(level, g, w, res)])
+            makers.append(lambda g, y, k, kind=kind: [make_primitive(kind, level, g, w, res)])
             family = "stones"
         required.append(family not in seen)
         seen.add(family)
@@ -281,7 +283,7 @@ def body_forest(
     gate: list[Obstacle] = []
     anchors = [np.asarray(entry, float), np.asarray(exit, float)]
     if level >= 1 and x1 - x0 >= 5.0 and rng.random() < 0.5:
-        p = po.narrow_passage(level, rng, w, res, passage=passage)
+        p = make_primitive("narrow_passage", level, rng, w, res, passage=passage)
         if x1 - x0 >= 3.0 + p.length:
             gx = rng.uniform(x0 + 1.5, x1 - 1.5 - p.length)
             gate = [o.translated(gx, 0.0, 0.0) for o in p.obstacles]
