@@ -54,14 +54,14 @@ def overrides(args: argparse.Namespace, grids: int, output_dir: Path) -> list[st
 def child(args: argparse.Namespace) -> None:
     """One evaluation in this process; prints ``{"grids", "peak_kib", "end_kib", "seconds", "episodes"}``."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    sys.path.insert(0, str(ROOT / "recipes"))
-    import evaluate as evaluate_recipe
     from hydra import compose, initialize_config_dir
+
+    from legoh_rl.training import eval_run
 
     with initialize_config_dir(config_dir=str(ROOT / "recipes" / "config"), version_base=None):
         cfg = compose(config_name="evaluate", overrides=overrides(args, args.child, Path(args.output_dir)))
     start = time.perf_counter()
-    out = evaluate_recipe.evaluate(cfg)
+    out = eval_run.evaluate(cfg)
     seconds = time.perf_counter() - start
     print(json.dumps({"grids": args.child, "peak_kib": _status_kib("VmHWM"), "end_kib": _status_kib("VmRSS"),
                       "seconds": round(seconds, 1), "episodes": len(out["episodes"])}), flush=True)

@@ -41,8 +41,9 @@ def main(argv: list[str] | None = None) -> None:
                                      epilog="Artefacts go to $LEGOH_DEMO_OUT (default outputs/demo).")
     parser.parse_args(argv)
     sys.path.insert(0, str(RECIPES))
-    import evaluate as evaluate_recipe
     import oracle_ppo
+
+    from legoh_rl.training import eval_run
 
     start = time.perf_counter()
     print("legoh-rl demo: (1) short oracle PPO training on easy trails, (2) the hiking benchmark\n")
@@ -60,7 +61,7 @@ def main(argv: list[str] | None = None) -> None:
     which = "the committed trained oracle" if policy == COMMITTED_ORACLE else "the checkpoint just trained"
     print(f"\nevaluating {which}: {policy}")
     eval_dir = OUT / "eval"
-    result = evaluate_recipe.evaluate(_compose("evaluate", [
+    result = eval_run.evaluate(_compose("evaluate", [
         f"checkpoint={policy}", "categories=[randommix,ditch]", "levels=[0,1]", "robots_per_cell=4",
         f"output_dir={eval_dir}", "video_seconds=6", "logger.exp_name=demo_eval",
         "overwrite=true",  # the last demo's evaluation is moved aside, as its training is

@@ -21,11 +21,11 @@ import math
 
 import numpy as np
 import torch
-from probe_cli import probe_parser
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from legoh_rl.training.policies import load_cell_policy
+from legoh_rl.training.probes import probe_parser
 
 #: how far (m) the probe looks for solid ground from a foot over a pit
 REACH = 1.5

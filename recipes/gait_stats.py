@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from probe_cli import probe_parser
 from tqdm import tqdm
 
 from legoh_rl.training.policies import load_cell_policy
+from legoh_rl.training.probes import probe_parser
 
 
 def gait_stats(checkpoint: str, category: str = "randommix", level: int = 0, robots: int = 8, seconds: float = 8.0,

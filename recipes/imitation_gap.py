@@ -23,14 +23,13 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from probe_cli import probe_parser
-from route_following import with_expert_goal
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from legoh_rl.training.distill import Teacher
 from legoh_rl.training.policies import load_cell_policy
+from legoh_rl.training.probes import probe_parser, with_expert_goal
 
 
 def imitation_gap(student: str, teacher: str, category: str = "randommix", level: int = 0, robots: int = 8,

@@ -28,42 +28,91 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 
+from legoh_rl.envs.robots import ROBOTS
+from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
+from legoh_rl.training.config_checks import (
+    Choice,
+    Flag,
+    Integer,
+    ListOf,
+    Name,
+    Number,
+    check_known_keys,
+    check_settings,
+    recipe_keys,
+)
+from legoh_rl.training.device import resolve_device
 from legoh_rl.viewer.native import check_display, run_native
-from legoh_rl.viewer.session import PlaySession
+from legoh_rl.viewer.session import MAX_ROBOTS, PlaySession
 
 VIEWERS = ("browser", "native")
 SCREENSHOT_SECONDS = 3.0
+CONFIG_FILE = Path(__file__).resolve().parent / "config" / "play.yaml"
+
+#: ``play.yaml``'s settings by kind (``legoh_rl/training/config_checks.py``); ``checkpoints``,
+#: ``device`` and ``screenshot_size`` have their own checks in :func:`validate`
+SETTINGS = {
+    "checkpoint": Name(),
+    "robot": Choice(tuple(ROBOTS), nullable=True, what="robot"),
+    "category": Choice(ALL_CATEGORIES, what="trail category"),
+    "level": Integer(0, NUM_LEVELS - 1),
+    "variant": Integer(0),
+    "num_robots": Integer(1, MAX_ROBOTS),
+    "seed": Integer(0),
+    "viewer": Choice(VIEWERS, what="viewer"),
+    "host": Name(),
+    "port": Integer(0, 65535, text="an integer in [0, 65535] (0: any free port)"),
+    "speed": Number(0.0, 1.0, low_open=True),
+    "follow": Flag(),
+    "device": Name(),
+    "seconds": Number(0.0, low_open=True, nullable=True),
+    "screenshot": Name(nullable=True),
+    "screenshot_size": ListOf(Integer(64)),
+}
+
+
+def validate(cfg: DictConfig) -> None:
+    """Check every setting before any work (no policy loaded, no trail built, no port opened), each
+    refusal naming the key and the value: ``checkpoint`` given, no key that ``play.yaml`` does not
+    have, :data:`SETTINGS` of their kind, ``checkpoints`` a mapping of robot names to checkpoints,
+    ``device`` a device of this machine and ``screenshot_size`` two sizes.
+
+    Raises:
+        ValueError: the first bad setting.
+    """
+    if cfg.get("checkpoint") is None:
+        raise ValueError("checkpoint is required: a .pt file from a recipe (checkpoints/student_h1.pt), a .onnx "
+                         "export, or 'zero' for the PD-hold baseline")
+    check_known_keys(cfg, recipe_keys(CONFIG_FILE), open_sections=("checkpoints",), name="play's config")
+    check_settings(cfg, SETTINGS)
+    checkpoints = cfg.get("checkpoints")
+    if checkpoints is not None:
+        if not isinstance(checkpoints, DictConfig | dict):
+            raise ValueError(f"checkpoints must map robot names to checkpoints, got {checkpoints!r}")
+        check_settings(cfg, {f"checkpoints.{robot}": Name() for robot in checkpoints})
+        unknown = [robot for robot in checkpoints if str(robot).lower() not in ROBOTS]
+        if unknown:
+            raise ValueError(f"checkpoints: unknown robot {unknown[0]!r}; valid: {list(ROBOTS)}")
+    resolve_device(cfg.device)  # an unknown name, or a GPU this machine lacks
+    if len(cfg.screenshot_size) != 2:
+        raise ValueError(f"screenshot_size must be [width, height] in pixels (>= 64), got {list(cfg.screenshot_size)}")
 
 
 def session_of(cfg: DictConfig) -> PlaySession:
-    """The :class:`PlaySession` a config describes (every value checked there)."""
+    """The :class:`PlaySession` a config checked by :func:`validate` describes."""
     checkpoints = cfg.get("checkpoints") or {}
     if isinstance(checkpoints, DictConfig):
         checkpoints = OmegaConf.to_container(checkpoints, resolve=True)
-    if not isinstance(checkpoints, dict):
-        raise ValueError(f"checkpoints must map robot names to checkpoints, got {checkpoints!r}")
     return PlaySession(cfg.checkpoint, robot=cfg.robot, category=cfg.category, level=cfg.level, variant=cfg.variant,
-                       num_robots=cfg.num_robots, seed=cfg.seed, device=cfg.device, checkpoints=checkpoints)
-
-
-def _seconds(cfg: DictConfig) -> float | None:
-    value = cfg.get("seconds")
-    if value is None:
-        return None
-    if isinstance(value, bool) or not isinstance(value, int | float) or not value > 0:
-        raise ValueError(f"seconds must be a positive number (or null), got {value!r}")
-    return float(value)
+                       num_robots=cfg.num_robots, seed=cfg.seed, device=resolve_device(cfg.device),
+                       checkpoints=checkpoints)
 
 
 def play(cfg: DictConfig) -> dict:
-    """Run the viewer ``cfg`` asks for; returns what it did (``viewer``, ``url``, ``screenshot``,
-    ``steps``) once it stops."""
-    if cfg.checkpoint is None:
-        raise ValueError("checkpoint is required: a .pt file from a recipe (checkpoints/student_h1.pt), a .onnx "
-                         "export, or 'zero' for the PD-hold baseline")
-    if cfg.viewer not in VIEWERS:
-        raise ValueError(f"unknown viewer {cfg.viewer!r}; valid: {list(VIEWERS)}")
-    seconds = _seconds(cfg)
+    """Run the viewer ``cfg`` asks for (every setting checked first: :func:`validate`); returns what
+    it did (``viewer``, ``url``, ``screenshot``, ``steps``) once it stops."""
+    validate(cfg)
+    seconds = None if cfg.seconds is None else float(cfg.seconds)
     if cfg.viewer == "native":
         check_display()  # before the env is built: say at once what is missing
         session = session_of(cfg)
@@ -75,12 +124,9 @@ def play(cfg: DictConfig) -> dict:
     from legoh_rl.viewer.web import WebViewer
 
     shot = cfg.get("screenshot")
-    port = cfg.port
-    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
-        raise ValueError(f"port must be an integer in [0, 65535] (0: any free port), got {port!r}")
     session = session_of(cfg)
     try:
-        viewer = WebViewer(session, host=str(cfg.host), port=port, speed=cfg.speed, follow=bool(cfg.follow))
+        viewer = WebViewer(session, host=str(cfg.host), port=cfg.port, speed=cfg.speed, follow=bool(cfg.follow))
     except BaseException:
         session.close()
         raise

@@ -30,13 +30,12 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from probe_cli import probe_parser
-from tensordict.nn import TensorDictModule, TensorDictSequential
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
 from legoh_rl.envs.sensors import world_to_yaw_frame, yaw_from_quat
 from legoh_rl.training.policies import load_cell_policy
+from legoh_rl.training.probes import probe_parser, with_expert_goal
 
 COLUMNS = ("expert_yaw", "course_error", "end_yaw", "pred_yaw", "pred_error", "route_offset")
 
@@ -139,16 +138,6 @@ def route_following(checkpoint: str, category: str = "randommix", level: int = 0
     result = {k: np.array(v) for k, v in rows.items()}
     result["time"] = np.arange(len(rows["expert_yaw"])) * base.dt
     return result
-
-
-def with_expert_goal(policy: TensorDictSequential, kind: str) -> TensorDictSequential:
-    """A student's ``(hold, locomotion)`` policy with ``goal_next`` overwritten by row 0 of
-    ``expert_goals`` (N, 2) between the two."""
-    if not kind.startswith("student"):
-        raise ValueError(f"goal_source='expert' needs a student checkpoint, got a {kind} policy")
-    expert = TensorDictModule(lambda goals: goals[..., 0, :].clone(), in_keys=["expert_goals"], out_keys=["goal_next"])
-    hold, actor = policy[0], policy[1]
-    return TensorDictSequential(hold, expert, actor)
 
 
 def summary_table(result: dict[str, np.ndarray], bin_s: float = 2.0) -> str:

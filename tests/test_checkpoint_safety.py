@@ -34,9 +34,10 @@ ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "recipes"
 sys.path.insert(0, str(RECIPES))
 
-import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
-import paper_tables  # noqa: E402
+
+from legoh_rl.paper_tables import read_info  # noqa: E402
+from legoh_rl.training import eval_run  # noqa: E402
 
 
 def cfg_of(name, overrides):
@@ -80,7 +81,7 @@ def test_the_crafted_file_does_run_code_when_unpickled_unsafely(tmp_path):
 
 
 def _evaluate(path, tmp_path):
-    return evaluate_recipe.evaluate(cfg_of("evaluate", [
+    return eval_run.evaluate(cfg_of("evaluate", [
         f"checkpoint={path}", f"output_dir={tmp_path / 'eval'}", "video=false", "logger.backend=csv",
         "categories=[randommix]", "levels=[0]", "robots_per_cell=1", "variants=1", "num_threads=1"]))
 
@@ -113,7 +114,7 @@ LOADERS = {
     "export_policy.py --format onnx": lambda path, tmp_path, mp: _export_recipe(path, tmp_path, "onnx", mp),
     "checkpoint.export_policy": lambda path, tmp_path, mp: export_policy(path, tmp_path / "slim.pt"),
     "oracle_ppo checkpoint.init": lambda path, tmp_path, mp: oracle_ppo.init_networks(None, None, str(path)),
-    "paper_tables.read_info": lambda path, tmp_path, mp: paper_tables.read_info(path),
+    "paper_tables.read_info": lambda path, tmp_path, mp: read_info(path),
 }
 
 
@@ -290,16 +291,16 @@ def test_a_failed_first_write_says_there_was_no_checkpoint_and_other_errors_pass
 ])
 def test_evaluate_names_the_key_of_a_bad_number_before_any_work(tmp_path, monkeypatch, override, message):
     called = []
-    monkeypatch.setattr(evaluate_recipe, "load_policy", lambda *a, **k: called.append(1))
+    monkeypatch.setattr(eval_run, "load_policy", lambda *a, **k: called.append(1))
     cfg = cfg_of("evaluate", ["checkpoint=zero", f"output_dir={tmp_path / 'eval'}", "logger.backend=csv", override])
     with pytest.raises(ValueError) as err:
-        evaluate_recipe.evaluate(cfg)
+        eval_run.evaluate(cfg)
     assert str(err.value) == message
     assert not called and not (tmp_path / "eval").exists()  # refused before any work
 
 
 def test_evaluate_numbers_accept_what_they_should():
-    assert evaluate_recipe.number_of("seed", "3") == 3 and evaluate_recipe.number_of("variants", 2.0) == 2
-    assert evaluate_recipe.number_of("video_seconds", 6, float) == 6.0
-    assert evaluate_recipe.numbers_of("trail_seeds", [0, "1"]) == [0, 1]
+    assert eval_run.number_of("seed", "3") == 3 and eval_run.number_of("variants", 2.0) == 2
+    assert eval_run.number_of("video_seconds", 6, float) == 6.0
+    assert eval_run.numbers_of("trail_seeds", [0, "1"]) == [0, 1]
 

@@ -1,13 +1,14 @@
 """Every bad config value is refused, naming its key, before any work (issue 50, property test).
 
-For each recipe (``recipes/config/*.yaml``: ``oracle_ppo``, ``unified``, ``evaluate``, and
-``play`` once it has a ``validate``), hypothesis draws for every leaf of the composed config a
+For each recipe (``recipes/config/*.yaml``: ``oracle_ppo``, ``unified``, ``evaluate`` and
+``play``), hypothesis draws for every leaf of the composed config a
 value its kind does not allow (a wrong type: text, a list, a mapping, a bool, null where null is
 not a setting, a fraction for an integer; a number out of range, nan, inf; a name off its list; a
 list with one bad entry) and for every section a key it does not have. Each is applied to a tiny
 valid config, and the recipe is run as its command line runs it (``run_experiment`` ->
-``train``; ``evaluate``) with ``HikingEnv`` made to raise: the run must stop with a ``ValueError``
-whose message names the key, before an env is built and before its output folder exists.
+``train``; ``evaluate``; ``play``) with ``HikingEnv`` made to raise: the run must stop with a
+``ValueError`` whose message names the key, before an env is built and before its output folder
+exists.
 
 :data:`KINDS` is this test's own statement of what each setting allows (independent of the
 recipes' tables), but for the ``env`` and ``ppo`` sections, whose kinds are stated once, in their
@@ -38,6 +39,7 @@ from hypothesis import strategies as st  # noqa: E402
 from legoh_rl.envs.config import HikingEnvConfig  # noqa: E402
 from legoh_rl.envs.hiking import HikingEnv  # noqa: E402
 from legoh_rl.envs.rewards import REWARD_FUNCTIONS  # noqa: E402
+from legoh_rl.envs.robots import ROBOTS  # noqa: E402
 from legoh_rl.kinds import Choice, Flag, Integer, ListOf, MapOf, Name, Number, OneOf, field_kind  # noqa: E402
 from legoh_rl.modules.oracle import ORACLE_NETWORKS  # noqa: E402
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS  # noqa: E402
@@ -48,9 +50,11 @@ from legoh_rl.training.stages import run_experiment  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "recipes" / "config"
 sys.path.insert(0, str(ROOT / "recipes"))
-import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
+import play  # noqa: E402
 import unified  # noqa: E402
+
+from legoh_rl.training import eval_run  # noqa: E402
 
 register_configs()
 
@@ -291,6 +295,25 @@ KINDS = {
         "logger.exp_name": bad_name(),
         "logger.group": bad_name(null=True),
     },
+    "play": {
+        "checkpoint": bad_name(),
+        "robot": bad_choice(("h1", "g1"), null=True),
+        "category": bad_choice(CATEGORIES),
+        "level": bad_int(0, 4),
+        "variant": bad_int(0),
+        "num_robots": bad_int(1, 16),
+        "seed": bad_int(0),
+        "viewer": bad_choice(("browser", "native")),
+        "host": bad_name(),
+        "port": bad_int(0, 65535),
+        "speed": bad_num(0, 1, low_open=True),
+        "follow": bad_flag(),
+        "device": bad_device(),
+        "seconds": bad_num(0, low_open=True, null=True),
+        "screenshot": bad_name(null=True),
+        "screenshot_size": st.one_of(bad_list(st.integers(64, 2000), bad_int(64)),
+                                     st.lists(st.integers(64, 2000), min_size=3, max_size=4), st.just([640])),
+    },
 }
 #: settings no value of which is refused, with the reason: none today. (Paths are checked where
 #: they are read, e.g. a missing checkpoint; this test draws only their wrong types.)
@@ -317,6 +340,8 @@ def tiny(name: str, out: Path) -> DictConfig:
         "unified": env + train + [f"teacher={ROOT / 'checkpoints' / 'oracle_h1.pt'}"],
         "evaluate": ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=1", "variants=1",
                      "device=cpu", "logger.backend=csv", f"output_dir={out}"],
+        "play": ["checkpoint=zero", "category=randommix", "level=0", "device=cpu", "port=0",
+                 f"screenshot={out / 'page.png'}"],
     }[name]
     with initialize_config_dir(config_dir=str(CONFIG), version_base=None):
         return compose(config_name=name, overrides=overrides)
@@ -325,7 +350,9 @@ def tiny(name: str, out: Path) -> DictConfig:
 def run(name: str, cfg: DictConfig) -> None:
     """Run recipe ``name`` on ``cfg`` as its command line does."""
     if name == "evaluate":
-        evaluate_recipe.evaluate(cfg)
+        eval_run.evaluate(cfg)
+    elif name == "play":
+        play.play(cfg)
     else:
         run_experiment(cfg, {"oracle_ppo": oracle_ppo.train, "unified": unified.train}[name], name)
 
@@ -398,7 +425,7 @@ def folders(tmp_path_factory):
     return tmp_path_factory.mktemp("config_properties")
 
 
-@pytest.mark.parametrize("name", ["oracle_ppo", "unified", "evaluate"])
+@pytest.mark.parametrize("name", ["oracle_ppo", "unified", "evaluate", "play"])
 def test_every_bad_value_is_refused_naming_its_key_before_any_work(name, folders):
     out = folders / name / "never"
     base = tiny(name, out)
@@ -422,6 +449,8 @@ def test_every_bad_value_is_refused_naming_its_key_before_any_work(name, folders
             for section, have in known.items():
                 if section == "env.reward_overrides":  # a mapping of reward terms: a new term must be one
                     have = have | set(REWARD_FUNCTIONS)
+                if section == "checkpoints":  # play's {robot: checkpoint}: a new key must be a robot
+                    have = have | set(ROBOTS)
                 new = data.draw(st.from_regex(r"[a-z][a-z0-9_]{0,9}", fullmatch=True).filter(lambda k, have=have: k not in have),
                                 label=f"new key in {section or 'the top'}")
                 key = f"{section}.{new}" if section else new

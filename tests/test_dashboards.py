@@ -125,11 +125,11 @@ def test_eval_figures_are_numbers():
 
 def test_evaluation_logs_numeric_columns_in_the_experiments_group(tmp_path, monkeypatch):
     wandb = pytest.importorskip("wandb")
-    import evaluate as evaluate_recipe
+    from legoh_rl.training import eval_run
 
-    assert evaluate_recipe.checkpoint_experiment(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt")) == \
+    assert eval_run.checkpoint_experiment(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt")) == \
         "oracle_h1_footholds"
-    assert evaluate_recipe.checkpoint_experiment("zero") is None
+    assert eval_run.checkpoint_experiment("zero") is None
     logged, inits = [], []
     real_log, real_init = wandb.sdk.wandb_run.Run.log, wandb.init
 
@@ -148,7 +148,7 @@ def test_evaluation_logs_numeric_columns_in_the_experiments_group(tmp_path, monk
         cfg = compose(config_name="evaluate", overrides=[
             "checkpoint=zero", "categories=[randommix,gap]", "levels=[0]", "robots_per_cell=1", "variants=1",
             "num_threads=1", f"output_dir={tmp_path}", "video=false", "logger.group=my_experiment"])
-    out = evaluate_recipe.evaluate(cfg)
+    out = eval_run.evaluate(cfg)
     assert inits[-1]["group"] == "my_experiment"
     scalars = next(d for d in logged if "eval/overall/success" in d)
     assert scalars["eval/overall/success"] == out["rows"]["overall"]["success"][0] == 0.0

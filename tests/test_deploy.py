@@ -20,8 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "recipes"
 sys.path.insert(0, str(RECIPES))
 
-import evaluate as evaluate_recipe  # noqa: E402
 import export_policy as export_recipe  # noqa: E402
+
+from legoh_rl.training import eval_run  # noqa: E402
 
 ORACLE = ROOT / "checkpoints" / "oracle_h1.pt"
 STUDENT = ROOT / "checkpoints" / "student_h1.pt"
@@ -84,7 +85,7 @@ def test_evaluating_the_oracle_graph_gives_the_checkpoints_table(exported, tmp_p
             cfg = compose(config_name="evaluate", overrides=[
                 f"checkpoint={checkpoint}", "categories=[randommix]", "levels=[0]", "robots_per_cell=2",
                 "variants=1", "num_threads=1", f"output_dir={out}", "video=false", "logger.backend=csv"])
-        return evaluate_recipe.evaluate(cfg)
+        return eval_run.evaluate(cfg)
 
     torch_eval = evaluate(ORACLE, tmp_path / "pt")
     onnx_eval = evaluate(exported / "oracle_h1.onnx", tmp_path / "onnx")

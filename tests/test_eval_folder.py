@@ -19,7 +19,7 @@ from legoh_rl.training.run_dir import RunDirError, open_eval_dir
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "recipes"))
-import evaluate as evaluate_recipe  # noqa: E402
+from legoh_rl.training import eval_run  # noqa: E402
 
 TINY = ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=1", "variants=1",
         "num_threads=1", "device=cpu", "video=false", "logger.backend=csv"]
@@ -44,10 +44,10 @@ def test_a_second_evaluation_into_a_running_ones_folder_is_refused_with_its_pid(
     try:
         assert holder.stdout.readline().strip() == "locked"
         built = []
-        monkeypatch.setattr(evaluate_recipe, "load_policy", lambda *a, **k: built.append(1))
+        monkeypatch.setattr(eval_run, "load_policy", lambda *a, **k: built.append(1))
         with pytest.raises(RunDirError, match=rf"another evaluation \(pid {holder.pid}\) is writing into "
                                               rf"{out}: wait for it to finish, stop it, or choose another output_dir"):
-            evaluate_recipe.evaluate(cfg_of(TINY + [f"output_dir={out}"]))
+            eval_run.evaluate(cfg_of(TINY + [f"output_dir={out}"]))
         assert not built and list(out.iterdir()) == [out / "eval.lock"]  # nothing written beside the lock
     finally:
         holder.stdin.close()
@@ -58,20 +58,20 @@ def test_a_second_evaluation_into_a_running_ones_folder_is_refused_with_its_pid(
 
 def test_a_folder_with_results_is_refused_unless_overwrite_moves_them_aside(tmp_path):
     out = tmp_path / "eval"
-    first = evaluate_recipe.evaluate(cfg_of(TINY + [f"output_dir={out}"]))
+    first = eval_run.evaluate(cfg_of(TINY + [f"output_dir={out}"]))
     table = Path(first["table"]).read_text()
-    assert (out / evaluate_recipe.RECORD_NAME).is_file()
+    assert (out / eval_run.RECORD_NAME).is_file()
     with pytest.raises(RunDirError, match=rf"output_dir={out} holds an earlier evaluation's results "
                                           r"\(episodes.csv, evaluated_with.json, logs, table.csv, .*\); a new evaluation would mix "
                                           r"its files with them. Start over with overwrite=true"):
-        evaluate_recipe.evaluate(cfg_of(TINY + [f"output_dir={out}", "levels=[1]"]))
+        eval_run.evaluate(cfg_of(TINY + [f"output_dir={out}", "levels=[1]"]))
     assert Path(first["table"]).read_text() == table  # untouched
-    second = evaluate_recipe.evaluate(cfg_of(TINY + [f"output_dir={out}", "levels=[1]", "overwrite=true"]))
+    second = eval_run.evaluate(cfg_of(TINY + [f"output_dir={out}", "levels=[1]", "overwrite=true"]))
     aside = [p for p in out.iterdir() if p.name.startswith("overwritten-")]
     assert len(aside) == 1 and (aside[0] / "table.md").read_text() == table  # the first evaluation, whole
-    assert json.loads((aside[0] / evaluate_recipe.RECORD_NAME).read_text())["config"]["levels"] == [0]
-    assert json.loads((out / evaluate_recipe.RECORD_NAME).read_text())["config"]["levels"] == [1]
-    assert "overwrite" not in json.loads((out / evaluate_recipe.RECORD_NAME).read_text())["config"]
+    assert json.loads((aside[0] / eval_run.RECORD_NAME).read_text())["config"]["levels"] == [0]
+    assert json.loads((out / eval_run.RECORD_NAME).read_text())["config"]["levels"] == [1]
+    assert "overwrite" not in json.loads((out / eval_run.RECORD_NAME).read_text())["config"]
     assert "| metric | level 1 | overall |" in Path(second["levels"]).read_text()
 
 

@@ -1,4 +1,7 @@
-"""HikingEnv behaviour (issue 4): specs, terminations, resets, determinism, sensors, metrics."""
+"""HikingEnv behaviour (issue 4): specs, terminations, resets, determinism, sensors, metrics.
+
+Why one file of ~550 lines: every test builds the same small env (``BoxScene`` and a tiny trail
+grid) and checks one behaviour of its step; the env's parts have their own files."""
 
 import math
 

@@ -132,7 +132,7 @@ def test_backend_choice_and_fallback(monkeypatch):
 
 def test_failed_build_is_reported(tmp_path, monkeypatch):
     monkeypatch.setenv("LEGOH_RL_CACHE", str(tmp_path))
-    with pytest.raises(RuntimeError, match="compiling height_march.c, obstacle_cast.c, body_state.c failed"):
+    with pytest.raises(RuntimeError, match="compiling height_march.c, obstacle_cast.c, body_state.c, parallel.c failed"):
         build.build_library(cc="false")  # a "compiler" that always fails
     assert list(tmp_path.iterdir()) == []  # no half-written library left behind
     monkeypatch.setattr(build.shutil, "which", lambda name: None)

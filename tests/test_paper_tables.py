@@ -1,12 +1,18 @@
-"""recipes/paper_tables.py: the transcribed paper numbers, the row -> checkpoint mapping on
-hand-made meta blocks, the tables written from hand-made results, the command line's errors,
-and one tiny end-to-end run of the committed H1 oracle."""
+"""recipes/paper_tables.py and legoh_rl/paper_tables/: the transcribed paper numbers, the row ->
+checkpoint mapping on hand-made meta blocks, the tables written from hand-made results, the
+command line's errors, one tiny end-to-end run of the committed H1 oracle, and the committed
+tables rendered again from the committed evaluation archive.
+
+Why one file of ~550 lines: the tests share the hand-made checkpoints, meta blocks and aggregates
+defined here, and the paper's numbers are checked against the tex one by one."""
 
 import csv
+import filecmp
 import hashlib
 import json
 import math
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -17,7 +23,10 @@ from hydra import compose, initialize_config_dir
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "recipes"))
 
-import paper_tables as pt  # noqa: E402
+import paper_tables as recipe  # noqa: E402
+
+import legoh_rl.paper_tables as pt  # noqa: E402
+from legoh_rl.training import eval_run  # noqa: E402
 
 TEX = ROOT.parent / "shared" / "reference" / "lego-h-paper.tex"
 SIX = ("success", "trail_completion", "traverse_rate", "mev", "ttf", "time_to_reach")
@@ -311,14 +320,14 @@ def test_each_checkpoint_is_evaluated_once_and_a_failure_does_not_stop_the_other
 ])
 def test_bad_command_lines_are_refused_naming_the_bad_value(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_:
-        pt.main(argv)
+        recipe.main(argv)
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
 
 
 def test_only_paper_writes_every_table_without_evaluating(tmp_path, monkeypatch):
     monkeypatch.setattr(pt, "run_rows", lambda *a, **k: pytest.fail("--only-paper evaluated something"))
-    assert pt.main(["--only-paper", "--out", str(tmp_path)]) == 0
+    assert recipe.main(["--only-paper", "--out", str(tmp_path)]) == 0
     assert {p.name for p in tmp_path.iterdir()} == {f"{n}.{ext}" for n in pt.TABLES for ext in ("md", "csv")} | {"tables.md"}
     text = (tmp_path / "tables.md").read_text()
     assert "Command: `python recipes/paper_tables.py --only-paper --out" in text
@@ -333,7 +342,7 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     argv = ["--checkpoints", str(ck), "--out", str(out), "--trail-seeds", "9101", "--robots-per-cell", "1",
             "--variants", "1", "--categories", "randommix", "--levels", "0", "--tables", "ablation",
             "--num-threads", "1", "--device", "cpu"]
-    assert pt.main(argv) == 0
+    assert recipe.main(argv) == 0
     assert {p.name for p in out.iterdir()} == {"ablation.md", "ablation.csv", "tables.md", "evals"}
     assert (out / "evals" / "oracle_h1" / "table.md").is_file()
     rows = {(r["row"], r["source"]): r for r in read_csv(out / "ablation.csv")}
@@ -348,7 +357,7 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
     assert "Trail seeds: 9101" in text and "--trail-seeds 9101" in text
     assert f"not trained: `{ck / 'student_h1.pt'}`" in text
     assert "| Oracle | ours | " in capsys.readouterr().out
-    record = json.loads((out / "evals" / "oracle_h1" / pt.RECORD_NAME).read_text())
+    record = json.loads((out / "evals" / "oracle_h1" / eval_run.RECORD_NAME).read_text())
     assert record["checkpoint_sha256"] == hashlib.sha256((ROOT / "checkpoints" / "oracle_h1.pt").read_bytes()).hexdigest()
     assert record["config"]["trail_seeds"] == [9101] and "output_dir" not in record["config"]
     # the same command again reads the evaluation back; --fresh or another protocol evaluates again
@@ -359,35 +368,35 @@ def test_the_committed_oracle_end_to_end_on_a_tiny_protocol(tmp_path, capsys, mo
         calls.append(cfg.robots_per_cell)
         return {"rows": {"overall": {m: (1.0, 0.0) for m in pt.METRICS}}}
 
-    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", fake_evaluate)
-    assert pt.main(argv) == 0 and calls == []
+    monkeypatch.setattr(eval_run, "evaluate", fake_evaluate)
+    assert recipe.main(argv) == 0 and calls == []
     assert (out / "ablation.csv").read_text() == before
-    assert pt.main(argv + ["--fresh"]) == 0 and calls == [1]
-    assert pt.main(argv) == 0 and calls == [1]  # the record is now the fresh evaluation's
-    assert pt.main(argv + ["--robots-per-cell", "2"]) == 0 and calls == [1, 2]
+    assert recipe.main(argv + ["--fresh"]) == 0 and calls == [1]
+    assert recipe.main(argv) == 0 and calls == [1]  # the record is now the fresh evaluation's
+    assert recipe.main(argv + ["--robots-per-cell", "2"]) == 0 and calls == [1, 2]
     # an evaluate.py run made on its own (its record written by evaluate.py) is taken up with
     # --reuse-from by a new --out, on the same protocol only
     alone = tmp_path / "alone"
     monkeypatch.undo()
-    with initialize_config_dir(config_dir=str(pt.CONFIG_DIR), version_base=None):
+    with initialize_config_dir(config_dir=str(eval_run.CONFIG_DIR), version_base=None):
         cfg = compose(config_name="evaluate", overrides=[
             f"checkpoint={ck / 'oracle_h1.pt'}", "trail_seeds=[9101]", "robots_per_cell=1", "variants=1",
             "categories=[randommix]", "levels=[0]", "video=false", "num_threads=1", "device=cpu",
             f"output_dir={alone / 'oracle'}", "logger.backend=csv"])
-    pt.evaluate_recipe.evaluate(cfg)  # the real evaluate.py, as its command line runs it
-    assert json.loads((alone / "oracle" / pt.RECORD_NAME).read_text())["checkpoint_sha256"] == record["checkpoint_sha256"]
-    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", fake_evaluate)
+    eval_run.evaluate(cfg)  # the real evaluate.py, as its command line runs it
+    assert json.loads((alone / "oracle" / eval_run.RECORD_NAME).read_text())["checkpoint_sha256"] == record["checkpoint_sha256"]
+    monkeypatch.setattr(eval_run, "evaluate", fake_evaluate)
     fresh_out = ["--out", str(tmp_path / "tables2")]
-    assert pt.main(argv + fresh_out + ["--reuse-from", str(alone)]) == 0 and calls == [1, 2]
-    assert pt.main(argv + ["--out", str(tmp_path / "tables3"), "--reuse-from", str(alone), "--variants", "2"]) == 0
+    assert recipe.main(argv + fresh_out + ["--reuse-from", str(alone)]) == 0 and calls == [1, 2]
+    assert recipe.main(argv + ["--out", str(tmp_path / "tables3"), "--reuse-from", str(alone), "--variants", "2"]) == 0
     assert calls == [1, 2, 1]  # another protocol: evaluated, not taken up
     # under the training's randomisation: evaluated with domain_rand, not taken up from a nominal evaluation
     dr_cfgs = []
-    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", lambda cfg: dr_cfgs.append(cfg) or fake_evaluate(cfg))
+    monkeypatch.setattr(eval_run, "evaluate", lambda cfg: dr_cfgs.append(cfg) or fake_evaluate(cfg))
     dr_out = tmp_path / "tables_dr"
-    assert pt.main(argv + ["--out", str(dr_out), "--reuse-from", str(alone), str(out), "--domain-rand"]) == 0
+    assert recipe.main(argv + ["--out", str(dr_out), "--reuse-from", str(alone), str(out), "--domain-rand"]) == 0
     assert len(dr_cfgs) == 1 and dr_cfgs[0].domain_rand is True
-    assert json.loads((dr_out / "evals" / "oracle_h1" / pt.RECORD_NAME).read_text())["config"]["domain_rand"] is True
+    assert json.loads((dr_out / "evals" / "oracle_h1" / eval_run.RECORD_NAME).read_text())["config"]["domain_rand"] is True
     assert "under the training's domain randomisation" in (dr_out / "tables.md").read_text()
 
 
@@ -403,33 +412,63 @@ def test_an_archive_keeps_each_evaluation_so_a_new_checkout_refills_without_eval
     def fake_evaluate(cfg):  # writes table.csv as evaluate.py does
         calls.append(Path(cfg.checkpoint).name)
         rows = aggregate_of(30.0 + len(calls))
-        pt.evaluate_recipe.write_csv(rows, Path(cfg.output_dir) / "table.csv")
+        eval_run.write_csv(rows, Path(cfg.output_dir) / "table.csv")
         return {"rows": rows}
 
-    monkeypatch.setattr(pt.evaluate_recipe, "evaluate", fake_evaluate)
+    monkeypatch.setattr(eval_run, "evaluate", fake_evaluate)
     archive = tmp_path / "archive"
     argv = ["--checkpoints", str(ck), "--trail-seeds", "9101", "--robots-per-cell", "1", "--variants", "1",
             "--tables", "g1", "--archive", str(archive)]
-    assert pt.main(argv + ["--out", str(tmp_path / "a")]) == 0
+    assert recipe.main(argv + ["--out", str(tmp_path / "a")]) == 0
     assert calls == ["student_h1.pt", "oracle_g1_trails.pt"]
     kept = sorted(archive.iterdir())
     assert [re.fullmatch(r"(oracle_g1_trails|student_h1)-[0-9a-f]{12}", k.name).group(1) for k in kept] == \
         ["oracle_g1_trails", "student_h1"]
     for k in kept:
-        assert {f.name for f in k.iterdir()} == {"table.csv", pt.RECORD_NAME}
+        assert {f.name for f in k.iterdir()} == {"table.csv", eval_run.RECORD_NAME}
         name = k.name.rsplit("-", 1)[0]
-        assert json.loads((k / pt.RECORD_NAME).read_text()) == \
-            json.loads((tmp_path / "a" / "evals" / name / pt.RECORD_NAME).read_text())
+        assert json.loads((k / eval_run.RECORD_NAME).read_text()) == \
+            json.loads((tmp_path / "a" / "evals" / name / eval_run.RECORD_NAME).read_text())
     student = {(r["row"], r["source"]): r for r in read_csv(tmp_path / "a" / "g1.csv")}[("h1_lego_h", "ours")]
     assert float(student["success_mean"]) == 31.0 and student["time_to_reach_mean"] == "nan"  # NaN survives
     # a fresh --out (as in a new checkout): every figure read back from the archive, none evaluated
-    assert pt.main(argv + ["--out", str(tmp_path / "b")]) == 0 and len(calls) == 2
+    assert recipe.main(argv + ["--out", str(tmp_path / "b")]) == 0 and len(calls) == 2
     assert (tmp_path / "b" / "g1.csv").read_text() == (tmp_path / "a" / "g1.csv").read_text()
     # another protocol, and a checkpoint changed in place: evaluated again, kept beside the others
-    assert pt.main(argv + ["--out", str(tmp_path / "c"), "--variants", "2"]) == 0 and len(calls) == 4
+    assert recipe.main(argv + ["--out", str(tmp_path / "c"), "--variants", "2"]) == 0 and len(calls) == 4
     fake_checkpoint(ck / "student_h1.pt", student_meta(retrained=True), hlm_config(True))
-    assert pt.main(argv + ["--out", str(tmp_path / "d")]) == 0 and calls[4:] == ["student_h1.pt"]
+    assert recipe.main(argv + ["--out", str(tmp_path / "d")]) == 0 and calls[4:] == ["student_h1.pt"]
     assert len(list(archive.iterdir())) == 5
+
+
+@pytest.mark.slow
+def test_the_committed_tables_render_again_from_the_committed_archive(tmp_path, monkeypatch):
+    """RESULTS.md's command on a copy of the committed archive (docs/paper_tables/evals) writes
+    docs/paper_tables/'s tables and RESULTS.md's marked tables byte for byte (tables.md but for
+    its command line), reading every figure back: nothing is evaluated, the archive is unchanged."""
+    archive = tmp_path / "evals"
+    shutil.copytree(ROOT / "docs" / "paper_tables" / "evals", archive)
+    results = tmp_path / "RESULTS.md"
+    shutil.copyfile(ROOT / "RESULTS.md", results)
+    out = tmp_path / "tables"
+
+    def no_evaluation(cfg):
+        raise AssertionError(f"evaluated {cfg.checkpoint}: the archive should hold it")
+
+    monkeypatch.setattr(eval_run, "evaluate", no_evaluation)
+    monkeypatch.chdir(ROOT)  # the tables name checkpoints as checkpoints/<file>
+    argv = ["--trail-seeds", "7901", "7902", "7903", "--robots-per-cell", "8", "--variants", "8",
+            "--archive", str(archive), "--into", str(results), "--out", str(out)]
+    assert recipe.main(argv) == 0
+    committed = ROOT / "docs" / "paper_tables"
+    for path in sorted(committed.glob("*.csv")):
+        assert (out / path.name).read_bytes() == path.read_bytes(), path.name
+    command = re.compile(r"^Command: .*$", re.M)
+    assert command.sub("", (out / "tables.md").read_text()) == command.sub("", (committed / "tables.md").read_text())
+    assert results.read_bytes() == (ROOT / "RESULTS.md").read_bytes()
+    copied = filecmp.dircmp(archive, committed / "evals")
+    assert not (copied.left_only or copied.right_only or copied.diff_files)
+    assert all(not (d.left_only or d.right_only or d.diff_files) for d in copied.subdirs.values())
 
 
 def test_a_row_with_several_training_seeds_is_their_mean_and_std(tmp_path):
@@ -505,11 +544,11 @@ def test_bad_markers_are_refused_naming_the_marker(text, message):
 def test_into_writes_the_tables_into_a_results_file_and_checks_it_first(tmp_path, capsys):
     results = tmp_path / "RESULTS.md"
     results.write_text("top\n<!-- paper_tables:hlm_vae -->\n<!-- /paper_tables:hlm_vae -->\nbottom\n")
-    assert pt.main(["--only-paper", "--tables", "hlm_vae", "--out", str(tmp_path / "t"), "--into", str(results)]) == 0
+    assert recipe.main(["--only-paper", "--tables", "hlm_vae", "--out", str(tmp_path / "t"), "--into", str(results)]) == 0
     text = results.read_text()
     assert text.startswith("top\n<!-- paper_tables:hlm_vae -->\n") and text.endswith("<!-- /paper_tables:hlm_vae -->\nbottom\n")
     assert "| Vanilla VAE | paper | 53.49 ± 1.61 |" in text and "###" not in text
     results.write_text("<!-- paper_tables:hlm_vae -->\n")  # refused before anything is evaluated
     with pytest.raises(SystemExit):
-        pt.main(["--trail-seeds", "1", "--out", str(tmp_path / "t"), "--into", str(results)])
+        recipe.main(["--trail-seeds", "1", "--out", str(tmp_path / "t"), "--into", str(results)])
     assert f"{results}: marker <!-- paper_tables:hlm_vae --> has no closing" in capsys.readouterr().err

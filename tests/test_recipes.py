@@ -1,4 +1,8 @@
-"""Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs."""
+"""Recipes end to end on tiny configs (issue 8): training, resume, evaluation, bad configs.
+
+Why one file of ~700 lines: each test runs a recipe as its command line does, on the same tiny
+configs and helpers; the recipes with many tests of their own have their own files
+(``test_unified.py``, ``test_paper_tables.py``, ``test_eval_folder.py``, ...)."""
 
 import json
 import math
@@ -19,8 +23,9 @@ RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 ROOT = RECIPES.parent
 sys.path.insert(0, str(RECIPES))
 
-import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
+
+from legoh_rl.training import eval_run  # noqa: E402
 
 TINY = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1",
         "collector.steps_per_env=8", "ppo.num_epochs=1", "ppo.num_minibatches=2", "logger.backend=csv"]
@@ -157,7 +162,7 @@ def test_evaluate_zero_policy_writes_artefacts(tmp_path):
     cfg = cfg_of("evaluate", ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=2",
                               "variants=1", "num_threads=1", f"output_dir={tmp_path}", "video_seconds=0.5",
                               "logger.backend=csv"])
-    out = evaluate_recipe.evaluate(cfg)
+    out = eval_run.evaluate(cfg)
     assert len(out["episodes"]) == 2
     overall = out["rows"]["overall"]
     assert overall["success"][0] == 0.0 and math.isnan(overall["time_to_reach"][0])
@@ -173,7 +178,7 @@ def test_evaluate_pools_trail_sets_as_runs(tmp_path, monkeypatch):
     """trail_seeds=[0,1]: the protocol on two trail grids (built with those seeds), each one run
     of the tables' mean +- std."""
     seeds, tiles = [], []
-    real = evaluate_recipe.load_policy
+    real = eval_run.load_policy
 
     def spy(*args, **kwargs):
         env, policy, kind = real(*args, **kwargs)
@@ -181,16 +186,16 @@ def test_evaluate_pools_trail_sets_as_runs(tmp_path, monkeypatch):
         tiles.append(env.trails.tile_end.copy())
         return env, policy, kind
 
-    monkeypatch.setattr(evaluate_recipe, "load_policy", spy)
+    monkeypatch.setattr(eval_run, "load_policy", spy)
     base = ["checkpoint=zero", "categories=[randommix]", "levels=[1]", "robots_per_cell=2", "variants=1",
             "num_threads=1", "video=false", "logger.backend=csv"]
-    out = evaluate_recipe.evaluate(cfg_of("evaluate", base + ["trail_seeds=[0,1]", f"output_dir={tmp_path}"]))
+    out = eval_run.evaluate(cfg_of("evaluate", base + ["trail_seeds=[0,1]", f"output_dir={tmp_path}"]))
     assert seeds == [0, 1] and not np.allclose(tiles[0], tiles[1])  # two different trail grids
     assert [(e["run"], e["trail_seed"]) for e in out["episodes"]] == [(0, 0), (0, 0), (1, 1), (1, 1)]
     ttf = [np.mean([e["ttf"] for e in out["episodes"] if e["run"] == r]) for r in (0, 1)]
     assert out["rows"]["overall"]["ttf"] == pytest.approx((np.mean(ttf), np.std(ttf)))
     with pytest.raises(ValueError, match=r"trail_seeds must be a non-empty list of distinct seeds, got \[3, 3\]"):
-        evaluate_recipe.evaluate(cfg_of("evaluate", base + ["trail_seeds=[3,3]", f"output_dir={tmp_path}"]))
+        eval_run.evaluate(cfg_of("evaluate", base + ["trail_seeds=[3,3]", f"output_dir={tmp_path}"]))
 
 
 def test_evaluate_under_domain_randomisation_is_recorded_as_such(tmp_path, monkeypatch):
@@ -198,20 +203,20 @@ def test_evaluate_under_domain_randomisation_is_recorded_as_such(tmp_path, monke
     says so; domain_rand=[terms] those terms alone; the default leaves the key out, as the records
     written before it existed."""
     envs = []
-    real = evaluate_recipe.load_policy
+    real = eval_run.load_policy
 
     def spy(*args, **kwargs):
         out = real(*args, **kwargs)
         envs.append(out[0])
         return out
 
-    monkeypatch.setattr(evaluate_recipe, "load_policy", spy)
+    monkeypatch.setattr(eval_run, "load_policy", spy)
     base = ["checkpoint=zero", "categories=[randommix]", "levels=[0]", "robots_per_cell=2", "variants=1",
             "num_threads=1", "video=false", "logger.backend=csv"]
     for rand in ("false", "true", "[friction]"):
         out_dir = tmp_path / rand.strip("[]")
-        evaluate_recipe.evaluate(cfg_of("evaluate", base + [f"domain_rand={rand}", f"output_dir={out_dir}"]))
-        record = json.loads((out_dir / evaluate_recipe.RECORD_NAME).read_text())["config"]
+        eval_run.evaluate(cfg_of("evaluate", base + [f"domain_rand={rand}", f"output_dir={out_dir}"]))
+        record = json.loads((out_dir / eval_run.RECORD_NAME).read_text())["config"]
         randomizer = envs[-1].randomizer
         if rand == "true":
             assert record["domain_rand"] is True and np.unique(randomizer.friction).size == 2 and randomizer.cfg.push
@@ -225,7 +230,7 @@ def test_evaluate_under_domain_randomisation_is_recorded_as_such(tmp_path, monke
                          ("[push,wind]", r"unknown domain randomisation term\(s\) \['wind'\]"),
                          ("[push,push]", r"domain_rand terms must be distinct, got \['push', 'push'\]")):
         with pytest.raises(ValueError, match=message):
-            evaluate_recipe.evaluate(cfg_of("evaluate", base + [f"domain_rand={bad}", f"output_dir={tmp_path}"]))
+            eval_run.evaluate(cfg_of("evaluate", base + [f"domain_rand={bad}", f"output_dir={tmp_path}"]))
 
 
 def test_exported_policy_is_slim_and_evaluates(tmp_path):
@@ -240,15 +245,15 @@ def test_exported_policy_is_slim_and_evaluates(tmp_path):
     cfg = cfg_of("evaluate", [f"checkpoint={slim}", "categories=[randommix]", "levels=[0]", "robots_per_cell=1",
                               "variants=1", "num_threads=1", f"output_dir={tmp_path / 'e'}", "video=false",
                               "logger.backend=csv"])
-    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 1
+    assert len(eval_run.evaluate(cfg)["episodes"]) == 1
 
 
 def test_evaluate_refuses_a_zero_length_video_before_evaluating(tmp_path, monkeypatch):
     called = []
-    monkeypatch.setattr(evaluate_recipe, "load_policy", lambda *a, **k: called.append(1))
+    monkeypatch.setattr(eval_run, "load_policy", lambda *a, **k: called.append(1))
     cfg = cfg_of("evaluate", ["checkpoint=zero", f"output_dir={tmp_path}", "video_seconds=0", "logger.backend=csv"])
     with pytest.raises(ValueError, match=r"video_seconds must be positive \(or video=false for no video\), got 0"):
-        evaluate_recipe.evaluate(cfg)
+        eval_run.evaluate(cfg)
     assert not called  # refused up front, not after the whole evaluation
     from legoh_rl.training.evaluation import render_video
 
@@ -259,7 +264,7 @@ def test_evaluate_refuses_a_zero_length_video_before_evaluating(tmp_path, monkey
 def test_evaluate_missing_checkpoint(tmp_path):
     cfg = cfg_of("evaluate", ["checkpoint=/nonexistent.pt", f"output_dir={tmp_path}", "logger.backend=csv"])
     with pytest.raises(FileNotFoundError, match="checkpoint not found: /nonexistent.pt"):
-        evaluate_recipe.evaluate(cfg)
+        eval_run.evaluate(cfg)
 
 
 def test_plot_curves_joins_resumed_stages_and_smooths():

@@ -404,16 +404,16 @@ def test_evaluation_writes_one_clip_per_category_when_asked(env, tmp_path):
     from legoh_rl.training.policies import ZeroPolicy
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "recipes"))
-    import evaluate as evaluate_recipe
+    from legoh_rl.training import eval_run
 
     protocol = EvalProtocol(categories=("randommix", "gap"), levels=(0,), robots_per_cell=1)  # 2 worlds, as env
     cfg = OmegaConf.create({"video_per_category": True, "video_seconds": 0.06})
-    main, per_category = evaluate_recipe.eval_videos(env, ZeroPolicy(env.A), protocol, cfg, tmp_path)
+    main, per_category = eval_run.eval_videos(env, ZeroPolicy(env.A), protocol, cfg, tmp_path)
     assert main == tmp_path / "robots.mp4" and imageio.mimread(main)[0].shape == (240, 640, 3)
     assert per_category == {c: tmp_path / "videos" / f"{c}.mp4" for c in ("randommix", "gap")}
     for path in per_category.values():
         frames = imageio.mimread(path)
         assert len(frames) == 2 and frames[0].shape == (240, 320, 3)
     cfg.video_per_category, cfg.video_seconds = False, 0.02  # one frame
-    assert evaluate_recipe.eval_videos(env, ZeroPolicy(env.A), protocol, cfg, tmp_path / "b")[1] == {}
+    assert eval_run.eval_videos(env, ZeroPolicy(env.A), protocol, cfg, tmp_path / "b")[1] == {}
     assert not (tmp_path / "b" / "videos").exists()

@@ -12,9 +12,10 @@ from legoh_rl.training.checkpoint import file_digest, load_checkpoint
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 sys.path.insert(0, str(RECIPES))
 
-import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
 import unified  # noqa: E402
+
+from legoh_rl.training import eval_run  # noqa: E402
 
 ENV = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1", "logger.backend=csv"]
 
@@ -71,7 +72,7 @@ def test_evaluate_a_student_checkpoint(teacher, tmp_path):
     cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
                               "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
                               "video=false", "logger.backend=csv"])
-    out = evaluate_recipe.evaluate(cfg)
+    out = eval_run.evaluate(cfg)
     assert len(out["episodes"]) == 2 and Path(out["table"]).is_file()
 
 
@@ -165,7 +166,7 @@ def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
     cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'student' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
                               "robots_per_cell=1", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
                               "video=false", "logger.backend=csv"])
-    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 1
+    assert len(eval_run.evaluate(cfg)["episodes"]) == 1
 
 
 def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, tmp_path):
@@ -297,7 +298,7 @@ def test_rma_student_trains_resumes_and_evaluates(teacher, tmp_path):
     cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
                               "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
                               "video=false", "logger.backend=csv"])
-    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 2
+    assert len(eval_run.evaluate(cfg)["episodes"]) == 2
 
 
 @pytest.mark.parametrize("extra,match", [
@@ -322,7 +323,7 @@ def test_a_blind_rma_b_student_trains_and_evaluates_without_the_camera(teacher, 
     cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
                               "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
                               "video=false", "logger.backend=csv"])
-    assert len(evaluate_recipe.evaluate(cfg)["episodes"]) == 2
+    assert len(eval_run.evaluate(cfg)["episodes"]) == 2
     with pytest.raises(ValueError, match="perception 'rmah' reads depth"):
         unified.build(tiny(teacher, tmp_path / "other", *RMA, "env.depth=false"))
 

@@ -217,6 +217,37 @@ def test_missing_viser_and_missing_display_are_explained(monkeypatch):
             play_recipe.play(OmegaConf.merge(cfg, {"checkpoint": ORACLE, "viewer": "native"}))
 
 
+@pytest.mark.parametrize("setting, message", [
+    ({"levle": 2}, "play's config has no setting 'levle'"),
+    ({"level": 7}, "level must be an integer in [0, 4], got 7"),
+    ({"category": "swamp"}, "category: unknown trail category 'swamp'"),
+    ({"robot": "atlas"}, "robot: unknown robot 'atlas'"),
+    ({"num_robots": 17}, "num_robots must be an integer in [1, 16], got 17"),
+    ({"variant": -1}, "variant must be an integer >= 0, got -1"),
+    ({"speed": 0}, "speed must be a number in (0.0, 1.0], got 0"),
+    ({"seconds": -1.0}, "seconds must be a positive number, got -1.0 (or null)"),
+    ({"follow": "yes"}, "follow must be true or false, got 'yes'"),
+    ({"device": "tpu"}, "device='tpu' is not a device"),
+    ({"checkpoints": 5}, "checkpoints must map robot names to checkpoints, got 5"),
+    ({"checkpoints": {"atlas": "atlas.pt"}}, "checkpoints: unknown robot 'atlas'"),
+    ({"checkpoints": {"g1": ""}}, "checkpoints.g1 must be a non-empty string, got ''"),
+    ({"screenshot_size": [640]}, "screenshot_size must be [width, height] in pixels (>= 64), got [640]"),
+    ({"screenshot_size": [10, 10]}, "screenshot_size must be a non-empty list of integers >= 64, got [10, 10]"),
+])
+def test_play_refuses_a_bad_setting_by_name_before_any_work(setting, message, monkeypatch):
+    """play.py's validate: every key and value checked before a policy is loaded or a port opened."""
+    import play as play_recipe
+
+    built = []
+    monkeypatch.setattr(play_recipe, "PlaySession", lambda *a, **k: built.append(1))
+    cfg = OmegaConf.merge(OmegaConf.load(ROOT / "recipes" / "config" / "play.yaml"), {"checkpoint": ORACLE})
+    play_recipe.validate(cfg)  # the yaml's own values with a checkpoint are valid
+    with pytest.raises(ValueError) as refused:
+        play_recipe.play(OmegaConf.merge(cfg, setting))
+    assert message in str(refused.value)
+    assert built == []
+
+
 # ---------------------------------------------------------------------- a real browser
 @pytest.fixture(scope="module")
 def chromium() -> str:

@@ -6,6 +6,9 @@ what should agree: outputs of the same state, the fall before contact, a held po
 second, the outcome of a landing, the rewards and depth of the same state, and randomised
 parameters reaching the simulation. Tolerances: float32 rounding of the state is ~2e-6; the held
 pose measured 1.6e-3 after 25 control steps, a 5 cm landing 2.3e-3 after 50.
+
+Why one file of ~550 lines: every test compares the two backends on the same model and pairs of
+worlds built here (the ``pair`` fixture), from one state to the evaluation recipe.
 """
 
 import dataclasses
@@ -32,9 +35,10 @@ from legoh_rl.training.checkpoint import load_checkpoint
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 sys.path.insert(0, str(RECIPES))
 
-import evaluate as evaluate_recipe  # noqa: E402
 import oracle_ppo  # noqa: E402
 import unified  # noqa: E402
+
+from legoh_rl.training import eval_run  # noqa: E402
 
 N = 4
 OFF = DomainRandConfig.off()
@@ -321,7 +325,7 @@ def test_oracle_recipe_trains_and_evaluate_runs_on_warp(tmp_path):
     state = load_checkpoint(tmp_path / "ck" / "last.pt")
     assert state["config"]["env"]["physics"] == "warp" and state["frames"] == 32
     assert state["config"]["env"]["resident"] is True
-    out = evaluate_recipe.evaluate(cfg_of("evaluate", [
+    out = eval_run.evaluate(cfg_of("evaluate", [
         f"checkpoint={tmp_path / 'ck' / 'last.pt'}", "physics=warp", "categories=[randommix]", "levels=[0]",
         "robots_per_cell=2", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}", "video=false",
         "logger.backend=csv"]))
@@ -336,7 +340,7 @@ def test_oracle_recipe_trains_and_evaluate_runs_on_warp(tmp_path):
     assert student["config"]["env"]["physics"] == "warp" and student["frames"] == 40
     assert student["config"]["env"]["depth_camera"]["source"] == "warp"
     with pytest.raises(ValueError, match="unknown physics 'gpu'"):
-        evaluate_recipe.evaluate(cfg_of("evaluate", ["checkpoint=zero", "physics=gpu", "categories=[randommix]",
+        eval_run.evaluate(cfg_of("evaluate", ["checkpoint=zero", "physics=gpu", "categories=[randommix]",
                                                      "levels=[0]", "robots_per_cell=1", "variants=1", "video=false",
                                                      f"output_dir={tmp_path / 'bad'}", "logger.backend=csv"]))
 
@@ -554,7 +558,7 @@ def test_the_gpu_student_experiment_trains_on_warps_cpu_device_and_evaluates_on_
     assert out["iteration"] == 2 and state["config"]["env"]["physics"] == "warp"
     assert state["config"]["experiment_name"] == "student_h1_trails_gpu" and state["config"]["encoder_grad_fraction"] == 0.25
     snapshot = tmp_path / "st" / "snapshots" / "frames000000080.pt"
-    result = evaluate_recipe.evaluate(cfg_of("evaluate", [
+    result = eval_run.evaluate(cfg_of("evaluate", [
         f"checkpoint={snapshot}", "physics=mujoco", "categories=[randommix]", "levels=[0]", "robots_per_cell=2",
         "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}", "video=false", "logger.backend=csv"]))
     assert len(result["episodes"]) == 2

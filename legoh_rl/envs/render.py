@@ -21,6 +21,10 @@ Rendering needs an OpenGL backend. Without a display, set ``MUJOCO_GL=egl`` (or 
 *before* ``mujoco`` is first imported, and install the libraries (Debian/Ubuntu:
 ``apt-get install libegl1 libgl1-mesa-dri`` for EGL, ``libosmesa6`` for OSMesa; ``make gl`` does
 the former). When no context can be made, :class:`RenderingUnavailableError` says so.
+
+Why one file of ~800 lines: the renderer and the rendering model it draws change together (a new
+look is a model change and a per-frame update, e.g. :class:`TerrainDetail`, :class:`SeeThrough`),
+and ``HikingEnv`` takes both from here; the markers and image helpers are the frame's overlays.
 """
 
 from __future__ import annotations

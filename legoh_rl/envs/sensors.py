@@ -1,6 +1,10 @@
 """Batched sensors: head depth camera (ray casting), scandots, contacts, base state.
 
 All functions take ``(N, ...)`` arrays and loop over no world in Python.
+
+Why one file of ~500 lines: the depth camera (its config and its ground-march, fused and exact
+obstacle paths) is most of it, and it shares the frame helpers (quaternions, yaw frame) with the
+scandots; the ray casters themselves live in ``height_map.py``, ``obstacle_rays.py`` and ``native/``.
 """
 
 from __future__ import annotations

@@ -5,6 +5,9 @@ Protocol (paper Sec. "Experimental Settings"): ``robots_per_cell`` robots on eve
 no randomisation, no curriculum), repeated for ``runs`` seeds. The paper uses 512 robots over
 5 categories x 5 levels and 5 runs; the CPU default uses a few robots per cell on the same code
 path. Each run's mean per category is one sample; tables report mean +- std over runs.
+
+Why one file of ~500 lines: the rollout and every view of its result (aggregates, tables, CSV,
+plot, videos) read the same per-episode records (:func:`_record`), whose layout is kept in one place.
 """
 
 from __future__ import annotations

@@ -58,6 +58,7 @@ from torchrl.modules import GRUModule
 from legoh_rl.modules.configs import PerceptionConfig
 from legoh_rl.modules.oracle import make_oracle_actor
 from legoh_rl.training.builders import oracle_networks
+from legoh_rl.training.checkpoint import load_checkpoint
 from legoh_rl.training.student import hold_keys, student_networks
 from legoh_rl.transforms import PerceptionHold
 
@@ -345,8 +346,6 @@ def export_onnx(src: str | os.PathLike, dst: str | os.PathLike, provenance: Mapp
         DeployError: an unknown checkpoint kind, a network the exporter cannot write, or a
             graph whose onnxruntime outputs differ from torch's by more than 1e-4.
     """
-    from legoh_rl.training.checkpoint import load_checkpoint
-
     require_deploy("onnx", "onnxruntime")
     state = load_checkpoint(src)
     meta = {**state["meta"], **(provenance or {})}

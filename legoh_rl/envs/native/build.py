@@ -1,6 +1,6 @@
 """Build and load the native kernels (``height_march.c``: the depth camera's ray march and bilinear
 lookups; ``obstacle_cast.c``: exact rays on obstacle geoms; ``body_state.c``: the env's per-step
-body state) with the system C compiler.
+body state; ``parallel.c``: the threads they share) with the system C compiler.
 
 The library is compiled once per source version and machine into a cache folder
 (``$LEGOH_RL_CACHE``, else ``$XDG_CACHE_HOME/legoh_rl``, else ``~/.cache/legoh_rl``) and loaded with
@@ -25,7 +25,8 @@ from pathlib import Path
 __all__ = ["SOURCES", "HEADERS", "cache_dir", "compiler", "library_path", "build_library", "load_library",
            "unavailable_reason"]
 
-SOURCES = tuple(Path(__file__).with_name(name) for name in ("height_march.c", "obstacle_cast.c", "body_state.c"))
+SOURCES = tuple(Path(__file__).with_name(name)
+                for name in ("height_march.c", "obstacle_cast.c", "body_state.c", "parallel.c"))
 HEADERS = tuple(Path(__file__).with_name(name) for name in ("parallel.h", "obstacle_cast.h", "height_map.h"))
 FLAGS = ("-O3", "-fPIC", "-shared", "-pthread", "-std=c99")
 

@@ -6,7 +6,7 @@
  * Culling: consecutive rays are taken in blocks of CULL rays; each geom's bounding sphere is
  * tested against the bounding box of the block's segments, and only the survivors are tested per
  * ray (bounding sphere against the segment, then the exact test). Blocks of rays are split
- * across threads (lh_parallel_for). Built with height_march.c into one library (see build.py).
+ * across threads (lh_parallel_for, parallel.c). Built with height_march.c into one library (see build.py).
  */
 #include <math.h>
 #include <stdint.h>

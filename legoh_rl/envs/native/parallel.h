@@ -1,4 +1,4 @@
-/* Blocks of a range of work items split across POSIX threads (defined in height_march.c, shared by
+/* Blocks of a range of work items split across POSIX threads (defined in parallel.c, shared by
  * the native kernels). */
 #ifndef LEGOH_RL_PARALLEL_H
 #define LEGOH_RL_PARALLEL_H
