@@ -41,8 +41,9 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
-from legoh_rl.training.builders import env_config, gait_kwargs
+from legoh_rl.training.builders import gait_kwargs
 from legoh_rl.training.checkpoint import load_checkpoint
+from legoh_rl.training.config_store import env_config
 
 ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "recipes"

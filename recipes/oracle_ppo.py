@@ -29,7 +29,6 @@ from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.oracle import oracle_network_class
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
-    PPOConfig,
     make_ppo_loss,
     policy_kl,
     set_loss_coefficients,
@@ -37,13 +36,11 @@ from legoh_rl.objectives.ppo import (
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
-    env_config,
     make_env,
     make_oracle,
     policy_meta,
     require_count,
     require_layers,
-    require_positive,
 )
 from legoh_rl.training.checkpoint import (
     check_meta,
@@ -54,7 +51,7 @@ from legoh_rl.training.checkpoint import (
     set_rng_state,
 )
 from legoh_rl.training.config_checks import Integer, ListOf, Name, Number
-from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.config_store import env_config, ppo_config, register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
@@ -62,9 +59,10 @@ from legoh_rl.training.schedules import check_anneal, feedforward_gain
 from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 
-register_configs()  # the env group's defaults, read from HikingEnvConfig
+register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
 
-#: this recipe's own settings by kind (beside builders' ENV_SETTINGS and TRAINING_SETTINGS);
+#: this recipe's own settings by kind (beside builders' TRAINING_SETTINGS and the env and ppo
+#: sections' dataclass fields);
 #: model.layers has its own check (require_layers)
 SETTINGS = {
     "model.init_std": Number(0, low_open=True),
@@ -76,17 +74,10 @@ SETTINGS = {
 }
 
 
-def ppo_config(cfg: DictConfig) -> PPOConfig:
-    return PPOConfig(
-        clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff, gamma=cfg.gamma, lmbda=cfg.lmbda,
-        learning_rate=cfg.learning_rate, desired_kl=cfg.desired_kl, num_epochs=cfg.num_epochs,
-        num_minibatches=cfg.num_minibatches, max_grad_norm=cfg.max_grad_norm,
-    )
-
-
 def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu"):
-    """Loss, GAE, optimiser and KL scheduler; the loss's buffers (and GAE's) on ``device``, where
-    ``actor`` and ``critic`` must already be (the optimiser holds their parameters)."""
+    """Loss, GAE, optimiser and KL scheduler of the ``ppo`` section ``cfg`` (every
+    :class:`~legoh_rl.objectives.ppo.PPOConfig` field); the loss's buffers (and GAE's) on
+    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their parameters)."""
     ppo_cfg = ppo_config(cfg)
     loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
     loss.to(device)
@@ -99,10 +90,8 @@ def validate(cfg: DictConfig) -> None:
     """Check every config value before any work (each error names the setting and its value)."""
     check_recipe_settings(cfg, Path(__file__).parent / "config" / "oracle_ppo.yaml", SETTINGS)
     env_config(cfg.env, "oracle")  # the env section's combinations (a gait clock for its terms, ...): nothing built
-    require_count("env", cfg.env, "num_envs")
+    ppo_config(cfg.ppo)  # the learning rate within the schedule's clamp
     require_count("collector", cfg.collector, "steps_per_env", "total_frames")
-    require_count("ppo", cfg.ppo, "num_epochs", "num_minibatches")
-    require_positive("ppo", cfg.ppo, "learning_rate")
     require_count("checkpoint", cfg.checkpoint, "every")
     require_count("", cfg, "torch_threads")
     resolve_device(cfg.get("device"))

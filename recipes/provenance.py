@@ -12,7 +12,9 @@ For a checkpoint (a run's ``last.pt`` or a slim export) it prints:
   (the keys that differ, if any);
 * where it started from: its teacher (a student's), ``checkpoint.init`` (an oracle's), the run it
   branched from (``checkpoint.branch``), each followed in turn while the file is at hand;
-* with ``--config``, the resolved config it trained with, as YAML.
+* with ``--config``, the resolved config it trained with, as YAML, in today's layout of the
+  settings (:func:`~legoh_rl.training.config_store.upgrade_recorded_config`: a run recorded before
+  the env section held every field reads with the fields it left out at their defaults).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
 from legoh_rl.training.checkpoint import file_digest, load_checkpoint
-from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.config_store import register_configs, upgrade_recorded_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = ROOT / "recipes" / "config"
@@ -93,7 +95,8 @@ def describe(path: Path, depth: int = 0, seen: set | None = None) -> list[str]:
         return [f"{pad}{path}: (above)"]
     seen.add(key)
     state = load_checkpoint(path)
-    meta, config = state.get("meta", {}), state.get("config") or {}
+    meta = state.get("meta", {})
+    config = upgrade_recorded_config(state["config"]) if state.get("config") else {}  # in today's layout
     shown = path.resolve().relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path
     lines = [f"{pad}{shown}",
              f"{pad}  kind {meta.get('kind')}, robot {meta.get('robot')}, iteration {state.get('iteration')}, "
@@ -139,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(describe(args.checkpoint)))
     if args.config:
         config = load_checkpoint(args.checkpoint).get("config")
+        config = upgrade_recorded_config(config) if config else None  # today's keys, as a command line sets them
         print("\nresolved config:\n" + (OmegaConf.to_yaml(OmegaConf.create(config)) if config else
                                          "  (none recorded: a checkpoint written before runs kept their config)"))
     return 0

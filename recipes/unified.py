@@ -38,7 +38,7 @@ from legoh_rl.modules.configs import PERCEPTION_PRESETS
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
-from legoh_rl.objectives.ppo import AdaptiveKLScheduler, PPOConfig, make_ppo_loss, policy_kl
+from legoh_rl.objectives.ppo import AdaptiveKLScheduler, make_ppo_loss, policy_kl
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
@@ -46,7 +46,6 @@ from legoh_rl.training.builders import (
     make_env,
     policy_meta,
     require_count,
-    require_positive,
 )
 from legoh_rl.training.checkpoint import (
     CheckpointError,
@@ -59,7 +58,7 @@ from legoh_rl.training.checkpoint import (
     set_rng_state,
 )
 from legoh_rl.training.config_checks import Choice, Flag, Integer, Name, Number
-from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.config_store import ppo_config, register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.distill import (
     STUDENT_ACTION_KEY,
@@ -76,13 +75,16 @@ from legoh_rl.training.stats import explained_variance
 from legoh_rl.training.student import LOCOMOTIONS, make_student, student_env
 from legoh_rl.training.weight_average import PolicyAverage
 
-register_configs()  # the env group's defaults, read from HikingEnvConfig
+register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
 
-#: this recipe's own settings by kind (beside builders' ENV_SETTINGS and TRAINING_SETTINGS);
+#: this recipe's own settings by kind (beside builders' TRAINING_SETTINGS and the env and ppo
+#: sections' dataclass fields; ``ppo.weight`` is this recipe's own key of the ppo section);
 #: encoder_grad_fraction, dagger_minibatches and minibatch_split have their own checks in validate
 SETTINGS = {
     "teacher": Name(),
-    "student.perception": Choice(tuple(sorted(PERCEPTION_BUILDERS))),
+    # the registry is the one list of networks, read when checked: a network registered by a
+    # caller (PERCEPTION_BUILDERS[name] = builder) is a valid student.perception too
+    "student.perception": Choice(lambda: sorted(PERCEPTION_BUILDERS)),
     "student.preset": Choice(tuple(PERCEPTION_PRESETS)),
     "student.init_std": Number(0, low_open=True, nullable=True),
     "student.locomotion": Choice(LOCOMOTIONS),
@@ -107,6 +109,8 @@ SETTINGS = {
     "checkpoint.ema_decay": Number(0, 1, low_open=True, high_open=True, nullable=True),
     "allow_new_teacher": Flag(),
 }
+#: the ppo section's keys that are this recipe's, not PPOConfig fields
+PPO_OWN = tuple(k.split(".", 1)[1] for k in SETTINGS if k.startswith("ppo."))
 
 
 def validate(cfg: DictConfig) -> None:
@@ -115,17 +119,13 @@ def validate(cfg: DictConfig) -> None:
     if cfg.get("teacher") is None:
         raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
     check_recipe_settings(cfg, Path(__file__).parent / "config" / "unified.yaml", SETTINGS)
-    if cfg.student.perception not in PERCEPTION_BUILDERS:  # the registry is the one list of networks
-        raise ValueError(f"unknown student.perception {cfg.student.perception!r}; valid: {sorted(PERCEPTION_BUILDERS)}")
     check_locomotion(cfg)
     if cfg.teacher is None:
         raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
     if not Path(cfg.teacher).is_file():
         raise FileNotFoundError(f"teacher: no checkpoint at {cfg.teacher}")
-    require_count("env", cfg.env, "num_envs")
+    ppo_config(cfg.ppo, PPO_OWN)  # the learning rate within the schedule's clamp
     require_count("collector", cfg.collector, "steps_per_env", "total_frames")
-    require_count("ppo", cfg.ppo, "num_epochs", "num_minibatches")
-    require_positive("ppo", cfg.ppo, "learning_rate")
     require_count("checkpoint", cfg.checkpoint, "every")
     require_count("", cfg, "dagger_epochs", "torch_threads")
     fraction = cfg.get("encoder_grad_fraction", 1.0)
@@ -208,9 +208,7 @@ def check_teacher(state: dict, cfg: DictConfig, digest: str, path) -> None:
 def make_losses(student, critic, num_actions: int, cfg: DictConfig, device: torch.device | str = "cpu"):
     """PPO (with GAE), DAgger, masked-VAE and HLM losses, their parameters and buffers on ``device``
     (where ``student`` and ``critic`` must already be)."""
-    ppo_cfg = PPOConfig(clip_epsilon=cfg.ppo.clip_epsilon, entropy_coeff=cfg.ppo.entropy_coeff, gamma=cfg.ppo.gamma,
-                        lmbda=cfg.ppo.lmbda, learning_rate=cfg.ppo.learning_rate, desired_kl=cfg.ppo.desired_kl)
-    ppo, gae = make_ppo_loss(student.actor, critic, ppo_cfg)
+    ppo, gae = make_ppo_loss(student.actor, critic, ppo_config(cfg.ppo, PPO_OWN))
     # the privileged-latent term trains what a frozen oracle actor (student.locomotion=oracle) reads
     dagger = DAggerLoss(w1=cfg.imitation.w1, w2=cfg.imitation.w2, w3=cfg.imitation.w3,
                         w_priv=float(cfg.imitation.get("w_priv", 1.0)) if frozen_oracle(cfg) else 0.0)
@@ -292,8 +290,9 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     params = [q for q in (*student.perception.parameters(), *student.actor.parameters(), *critic.parameters())
               if q.requires_grad]  # not a frozen oracle locomotion
     # fused: one kernel over every tensor (~6x faster a step on a CPU; float rounding may differ)
-    optim = torch.optim.Adam(params, lr=cfg.ppo.learning_rate, **({"fused": True} if cfg.get("fused_adam") else {}))
-    sched = AdaptiveKLScheduler(optim, cfg.ppo.desired_kl, max_lr=max(cfg.ppo.learning_rate, 1e-2))
+    ppo_cfg = ppo_config(cfg.ppo, PPO_OWN)
+    optim = torch.optim.Adam(params, lr=ppo_cfg.learning_rate, **({"fused": True} if cfg.get("fused_adam") else {}))
+    sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
     vae_optim = torch.optim.Adam(vae.parameters(), lr=cfg.hlm.vae_lr)
     meta = {**policy_meta(base, "student"), "perception": cfg.student.perception, "preset": cfg.student.preset}
     if oracle:  # learned locomotion: no entries, as in every checkpoint made before the option

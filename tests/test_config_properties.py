@@ -11,12 +11,15 @@ valid config, and the recipe is run as its command line runs it (``run_experimen
 exists.
 
 :data:`KINDS` is this test's own statement of what each setting allows (independent of the
-recipes' tables): a leaf missing from it fails the test, so a new setting needs its kind here.
+recipes' tables), but for the ``env`` and ``ppo`` sections, whose kinds are stated once, in their
+dataclasses' fields (:func:`dataclass_kinds`; ``tests/test_config_store.py`` pins some by hand): a
+leaf missing from it fails the test, so a new setting needs its kind here.
 The counts of values tried and refused are printed at the end of the module (``-s``, or the
 terminal summary).
 """
 
 import contextlib
+import dataclasses
 import math
 import re
 import shutil
@@ -33,11 +36,15 @@ hypothesis = pytest.importorskip("hypothesis")  # the dev extra (pyproject.toml)
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
+from legoh_rl.envs.config import HikingEnvConfig  # noqa: E402
 from legoh_rl.envs.hiking import HikingEnv  # noqa: E402
 from legoh_rl.envs.rewards import REWARD_FUNCTIONS  # noqa: E402
 from legoh_rl.envs.robots import ROBOTS  # noqa: E402
+from legoh_rl.kinds import Choice, Flag, Integer, ListOf, MapOf, Name, Number, OneOf, field_kind  # noqa: E402
 from legoh_rl.modules.oracle import ORACLE_NETWORKS  # noqa: E402
-from legoh_rl.training.config_store import register_configs  # noqa: E402
+from legoh_rl.modules.perception import PERCEPTION_BUILDERS  # noqa: E402
+from legoh_rl.objectives.ppo import PPOConfig  # noqa: E402
+from legoh_rl.training.config_store import SET_BY_RECIPE, register_configs  # noqa: E402
 from legoh_rl.training.stages import run_experiment  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -138,35 +145,55 @@ def bad_stages() -> st.SearchStrategy:
 
 # ------------------------------------------------------------------------------- what each key allows
 
-ENV = {
-    "env.robot": bad_choice(("h1", "g1")),
-    "env.num_envs": bad_int(1),
-    "env.categories": bad_list(st.sampled_from(CATEGORIES), bad_choice(CATEGORIES), null=True, single_ok=CATEGORIES),
-    "env.category_weights": bad_list(st.floats(0.1, 5), bad_num(0, low_open=True), null=True),
-    "env.levels": bad_list(st.integers(0, 4), bad_int(0, 4), null=True),
-    "env.variants": bad_int(1, null=True),
-    "env.num_threads": bad_int(1, null=True),
-    "env.physics": bad_choice(("mujoco", "warp"), null=True),
-    "env.resident": bad_flag(null=True),
-    "env.seed": bad_int(0),
-    "env.domain_rand": bad_flag(),
-    "env.curriculum": bad_flag(),
-    "env.episode_length_s": bad_num(0, low_open=True, null=True),
-    "env.cmd_speed": bad_num(0, low_open=True, null=True),
-    "env.gait_period": bad_num(0, null=True),
-    "env.gait_stance": bad_num(0, 1, low_open=True, high_open=True, null=True),
-    "env.gait_amplitude": bad_num(0, null=True),
-    "env.gait_feedforward": bad_num(0, null=True),
-    "env.feet_edge_from_level": bad_int(0, null=True),
-    "env.pit_depths": bad_list(st.floats(0.05, 2), bad_num(0, low_open=True), null=True),
-    "env.reward_overrides.alive": bad_num(),
-    "env.reward_overrides.termination": bad_num(),
-    "env.depth": bad_flag(null=True),
-    "env.depth_source": bad_choice(("auto", "host", "warp"), null=True),
-    "env.action_delay_after_steps": bad_int(0, null=True),
-}
+def bad_of(kind) -> st.SearchStrategy:
+    """Values a field's kind (legoh_rl/kinds.py) does not allow: the strategies above, by kind."""
+    null = kind.nullable
+    if isinstance(kind, Integer):
+        return bad_int(kind.minimum, kind.maximum, null=null)
+    if isinstance(kind, Number):
+        return bad_num(kind.low, kind.high, kind.low_open, kind.high_open, null=null)
+    if isinstance(kind, Flag):
+        return bad_flag(null=null)
+    if isinstance(kind, Choice):
+        return bad_choice(kind.options, null=null)
+    if isinstance(kind, Name):
+        return bad_name(null=null)
+    if isinstance(kind, ListOf):
+        item = kind.item
+        good = (st.sampled_from(item.options) if isinstance(item, Choice) else
+                st.integers(item.minimum, item.maximum if item.maximum is not None else item.minimum + 3)
+                if isinstance(item, Integer) else st.floats(0.05, 2))
+        return bad_list(good, bad_of(item), null=null, single_ok=item.options if kind.single else ())
+    if isinstance(kind, OneOf):  # eval_domain_rand: true, false, a term or a list of terms
+        terms = next(k.options for k in kind.kinds if isinstance(k, Choice))
+        return st.one_of(TEXT.filter(lambda t: t not in terms), st.integers(-2, 2), FRACTIONS, DICTS, st.none(),
+                         st.just([]), st.lists(TEXT.filter(lambda t: t not in terms), min_size=1, max_size=2))
+    raise AssertionError(f"no strategy for {kind}")
+
+
+def dataclass_kinds(section: str, cls, skip=()) -> dict:
+    """``{"<section>.<field>": bad values}`` for every field of a config dataclass (nested
+    sections' fields as ``<section>.<sub>.<field>``), read from the kinds its fields state."""
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.name in skip:
+            continue
+        kind = field_kind(f)
+        if kind is None:  # a nested section
+            out.update(dataclass_kinds(f"{section}.{f.name}", type(f.default_factory())))
+        elif isinstance(kind, MapOf):  # reward_overrides: the recipes' entries, each a weight
+            out.update({f"{section}.{f.name}.{term}": bad_of(kind.value) for term in ("alive", "termination")})
+        else:
+            out[f"{section}.{f.name}"] = bad_of(kind)
+    return out
+
+
+#: the env and ppo sections: every field of HikingEnvConfig (but what the recipe sets) and of
+#: PPOConfig, by the kinds the fields state (tests/test_config_store.py pins a few of them)
+ENV = dataclass_kinds("env", HikingEnvConfig, skip=SET_BY_RECIPE)
 TRAINING = {
     **ENV,
+    **dataclass_kinds("ppo", PPOConfig),
     "experiment_name": bad_name(null=True),
     "stage_name": bad_name(null=True),
     "stages": bad_stages(),
@@ -179,15 +206,6 @@ TRAINING = {
     "collector.ray.address": bad_name(null=True),
     "collector.ray.num_cpus_per_worker": bad_int(1),
     "collector.ray.memory_per_worker_gib": bad_num(0, low_open=True, null=True),
-    "ppo.clip_epsilon": bad_num(0, 1, low_open=True),
-    "ppo.entropy_coeff": bad_num(0),
-    "ppo.gamma": bad_num(0, 1),
-    "ppo.lmbda": bad_num(0, 1),
-    "ppo.learning_rate": bad_num(0, low_open=True),
-    "ppo.desired_kl": bad_num(0, low_open=True),
-    "ppo.num_epochs": bad_int(1),
-    "ppo.num_minibatches": bad_int(1),
-    "ppo.max_grad_norm": bad_num(0, low_open=True),
     "logger.backend": bad_choice(("wandb", "csv")),
     "logger.online": bad_flag(),
     "logger.project": bad_name(),
@@ -220,7 +238,7 @@ KINDS = {
         **TRAINING,
         "recipe": bad_choice(("unified",), null=True),
         "teacher": bad_name(),
-        "student.perception": bad_choice(("tcvit", "tcvit_ct", "vanilla", "eph", "rmah", "rmab")),
+        "student.perception": bad_choice(tuple(PERCEPTION_BUILDERS)),
         "student.preset": bad_choice(("cpu", "paper")),
         "student.init_std": bad_num(0, low_open=True, null=True),
         "student.locomotion": bad_choice(("learned", "oracle")),
@@ -245,6 +263,7 @@ KINDS = {
         "hlm.vae_steps": bad_int(1),
         "hlm.warmup_iters": bad_int(0),
         "checkpoint.branch": bad_name(null=True),
+        "checkpoint.ema_decay": bad_num(0, 1, low_open=True, high_open=True, null=True),
         "allow_new_teacher": bad_flag(),
     },
     "evaluate": {

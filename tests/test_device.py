@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from legoh_rl.training import checkpoint as ckpt
-from legoh_rl.training.builders import env_config
+from legoh_rl.training.config_store import env_config
 from legoh_rl.training.device import resolve_device
 
 
@@ -85,5 +85,5 @@ def test_env_device_is_not_a_setting_of_the_env_section():
     section = {"robot": "h1", "num_envs": 2, "categories": ["randommix"]}
     assert env_config(section, "oracle").device == "cpu"
     assert env_config(section, "oracle", device="cuda:0").device == "cuda:0"  # the recipe's device
-    with pytest.raises(ValueError, match=r"env.device='cuda' is not a setting: the recipe's device=\.\.\. is the one switch"):
+    with pytest.raises(ValueError, match=r"env.device='cuda' is not a setting: it is the recipe's device=\.\.\."):
         env_config({**section, "device": "cuda"}, "oracle")

@@ -15,8 +15,8 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from legoh_rl.training.builders import env_config
 from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
+from legoh_rl.training.config_store import env_config
 from legoh_rl.training.evaluation import aggregate, markdown_table
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
@@ -696,6 +696,8 @@ def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, caps
     assert "teacher:" in out and "checkpoints/oracle_h1.pt" in out
     assert "experiment oracle_h1_footholds: oracle_h1_footholds.yaml <- oracle_h1_trails.yaml" in out
     assert "resolved config:" in out and "dagger_iters: 1455" in out
+    # recorded in the old layout of the env section, printed in today's (upgrade_recorded_config)
+    assert "  depth_camera:\n" in out and "  timestep: 0.005" in out and "depth_source" not in out
     assert provenance.experiment_chain("student_g1") == ["student_g1", "student_h1", "student_h1_trails"]
     changed, added = provenance.differences({"a": 1, "b": {"c": 2}, "gone": 0}, {"a": 1, "b": {"c": 3, "d": 4}})
     assert changed == ["b.c: recorded 2, today 3", "gone: recorded 0, today '<no longer a setting>'"]

@@ -18,7 +18,7 @@ from legoh_rl.envs.config import HikingEnvConfig
 from legoh_rl.envs.device_terrain import DeviceTerrain, MaskGrid
 from legoh_rl.envs.hiking import HikingEnv
 from legoh_rl.envs.warp_physics import WarpWorlds
-from legoh_rl.training.builders import env_config
+from legoh_rl.training.config_store import env_config
 
 N = 4
 BASE = dict(robot="h1", num_envs=N, num_threads=1, physics="warp", seed=3)

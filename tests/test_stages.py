@@ -11,6 +11,7 @@ from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf, open_dict
 
 from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
+from legoh_rl.training.config_store import upgrade_recorded_config
 from legoh_rl.training.stages import (
     Stage,
     parse_stages,
@@ -154,7 +155,7 @@ SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
 
 @pytest.mark.parametrize("name,checkpoint", RECORDED, ids=[r[0] for r in RECORDED])
 def test_committed_experiments_expand_to_the_recorded_settings(name, checkpoint):
-    recorded = load_checkpoint(ROOT / checkpoint)["config"]
+    recorded = upgrade_recorded_config(load_checkpoint(ROOT / checkpoint)["config"])  # in today's layout
     cfg = cfg_of(OmegaConf.load(RECIPES / "config" / "experiment" / f"{name}.yaml").recipe, [f"experiment={name}"])
     stages = parse_stages(cfg.get("stages"))  # a single-stage experiment has none
     final = OmegaConf.to_container(stage_settings(cfg, stages[-1]) if stages else cfg, resolve=True)

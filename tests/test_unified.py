@@ -386,3 +386,23 @@ def test_bad_cheap_update_settings_are_refused(teacher, tmp_path, extra, match):
 def test_bad_snapshot_every_is_refused(teacher, tmp_path):
     with pytest.raises(ValueError, match=r"checkpoint.snapshot_every must be an integer >= 0 .*got -2"):
         unified.train(tiny(teacher, tmp_path, "checkpoint.snapshot_every=-2"))
+
+
+def test_a_newly_registered_perception_network_is_a_student_perception(teacher, tmp_path, monkeypatch):
+    """The recipe's one list of perception networks is the registry (PERCEPTION_BUILDERS): a
+    network registered after the recipe was imported is accepted and trained; a name no one
+    registered is refused, listing the registered ones."""
+    from legoh_rl.modules.perception import PERCEPTION_BUILDERS, make_tcvit
+
+    built = []
+
+    def my_perception(cfg, keys=None):
+        built.append(cfg)
+        return make_tcvit(cfg, keys)
+
+    with pytest.raises(ValueError, match=r"unknown student.perception 'mine'; valid: \[.*'tcvit'"):
+        unified.validate(tiny(teacher, tmp_path / "refused", "student.perception=mine"))
+    monkeypatch.setitem(PERCEPTION_BUILDERS, "mine", my_perception)
+    out = unified.train(tiny(teacher, tmp_path / "ck", "student.perception=mine", "collector.total_frames=40"))
+    assert out["iteration"] == 1 and built
+    assert load_checkpoint(tmp_path / "ck" / "last.pt")["meta"]["perception"] == "mine"

@@ -190,7 +190,7 @@ def test_host_depth_on_warp_physics_matches_the_c_backends(source):
     assert (diff < 1e-3).mean() > 0.99 and diff.max() < 0.05  # a pixel on an edge may flip
     with pytest.raises(ValueError, match="source='warp' casts the simulation's own rays: it needs physics='warp'"):
         HikingEnvConfig(physics="mujoco", depth_camera=DepthCameraConfig(source="warp"))
-    with pytest.raises(ValueError, match="depth source must be one of"):
+    with pytest.raises(ValueError, match="source: unknown depth source 'gpu'"):
         DepthCameraConfig(source="gpu")
 
 
@@ -333,12 +333,12 @@ def test_oracle_recipe_trains_and_evaluate_runs_on_warp(tmp_path):
     # a student distilled on Warp: its depth cast on the simulation's device, through the
     # student transforms (depth history, perception hold) into TC-ViT
     unified.train(cfg_of("unified", env + [f"teacher={tmp_path / 'ck' / 'last.pt'}", "collector.steps_per_env=10",
-                                           "env.depth_source=warp",
+                                           "env.depth_camera.source=warp",
                                            "collector.total_frames=40", "dagger_iters=1", "hlm.warmup_iters=1",
                                            "ppo.num_epochs=1", f"checkpoint.dir={tmp_path / 'st'}"]))
     student = load_checkpoint(tmp_path / "st" / "last.pt")
     assert student["config"]["env"]["physics"] == "warp" and student["frames"] == 40
-    assert student["config"]["env"]["depth_source"] == "warp"
+    assert student["config"]["env"]["depth_camera"]["source"] == "warp"
     with pytest.raises(ValueError, match="unknown physics 'gpu'"):
         eval_run.evaluate(cfg_of("evaluate", ["checkpoint=zero", "physics=gpu", "categories=[randommix]",
                                                      "levels=[0]", "robots_per_cell=1", "variants=1", "video=false",

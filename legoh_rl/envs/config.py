@@ -1,4 +1,11 @@
-"""Configuration of the hiking env (one dataclass, composed by hydra in the recipes)."""
+"""Configuration of the hiking env: one dataclass, each field with its default and its kind.
+
+The recipes' ``env`` section is this dataclass (hydra group ``env/hiking``, built by
+:mod:`legoh_rl.training.config_store`): every field, nested sections included, is a setting
+(``env.decimation=2``, ``env.domain_rand.push=false``, ``env.depth_camera.noise_std=0.01``), but
+``mode`` and ``device``, which the recipe sets. Each field's allowed values are its kind
+(:func:`legoh_rl.kinds.setting`), checked by ``__post_init__`` with how the fields combine.
+"""
 
 from __future__ import annotations
 
@@ -6,7 +13,21 @@ from dataclasses import dataclass, field, replace
 
 from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS, DomainRandConfig
+from legoh_rl.envs.robots import ROBOTS
 from legoh_rl.envs.sensors import DepthCameraConfig
+from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
+from legoh_rl.kinds import (
+    Choice,
+    Flag,
+    Integer,
+    ListOf,
+    MapOf,
+    Name,
+    Number,
+    OneOf,
+    check_fields,
+    setting,
+)
 
 __all__ = ["HikingEnvConfig", "MODES", "PHYSICS", "ANG_VEL_SCALE", "DOF_VEL_SCALE", "LIN_VEL_SCALE"]
 
@@ -16,6 +37,13 @@ PHYSICS = ("mujoco", "warp")  # env.physics: C MuJoCo threads or MuJoCo Warp
 ANG_VEL_SCALE = 0.25
 DOF_VEL_SCALE = 0.05
 LIN_VEL_SCALE = 2.0
+
+
+def _reward_terms() -> tuple[str, ...]:
+    """The reward terms ``reward_overrides`` may weight (read when checked)."""
+    from legoh_rl.envs.rewards import REWARD_FUNCTIONS
+
+    return tuple(REWARD_FUNCTIONS)
 
 
 @dataclass
@@ -95,99 +123,79 @@ class HikingEnvConfig:
         device: torch device of the output tensors.
     """
 
-    robot: str = "h1"
-    freeze_ankle_roll: bool = False
-    num_envs: int = 64
-    mode: str = "oracle"
-    categories: tuple[str, ...] = ("randommix", "ditch", "hurdle", "gap", "forest")
-    category_weights: tuple[float, ...] | None = None
-    levels: tuple[int, ...] = (0,)
-    variants: int = 2
-    pit_depths: tuple[float, ...] | None = None
-    depth: bool | None = None
+    robot: str = setting("h1", Choice(lambda: tuple(ROBOTS), what="robot"))
+    freeze_ankle_roll: bool = setting(False, Flag())
+    num_envs: int = setting(64, Integer(1))
+    mode: str = setting("oracle", Choice(MODES, what="mode"))
+    categories: tuple[str, ...] = setting(("randommix", "ditch", "hurdle", "gap", "forest"),
+                                          ListOf(Choice(ALL_CATEGORIES, what="trail category"), single=True))
+    category_weights: tuple[float, ...] | None = setting(None, ListOf(Number(0, low_open=True), nullable=True))
+    levels: tuple[int, ...] = setting((0,), ListOf(Integer(0, NUM_LEVELS - 1)))
+    variants: int = setting(2, Integer(1))
+    pit_depths: tuple[float, ...] | None = setting(None, ListOf(Number(0, low_open=True), nullable=True))
+    depth: bool | None = setting(None, Flag(nullable=True))
     depth_camera: DepthCameraConfig = field(default_factory=DepthCameraConfig)
-    perception_every: int = 5
-    num_goals: int = 3
-    cmd_speed: float = 0.8
-    episode_length_s: float = 20.0
-    eval_episode_length_s: float = 30.0
-    goal_radius: float = 0.5
-    eval_goal_radius: float = 0.89
-    goal_reach_radius: float = 0.5
-    fall_roll_pitch: float = 1.0
-    fall_height_ratio: float = 0.5
-    timestep: float = 0.005
-    decimation: int = 4
-    num_threads: int | None = None
-    physics: str = "mujoco"
-    resident: bool | None = None
-    action_clip: float = 5.0
-    spawn_jitter_xy: float = 0.2
-    spawn_jitter_yaw: float = 0.3
-    swing_height: float = 0.1
-    gait_period: float = 0.0
-    gait_stance: float = 0.55
-    gait_amplitude: float = 0.25
-    gait_feedforward: float = 0.0
-    feet_edge_from_level: int = 4
-    reward_overrides: dict[str, float] = field(default_factory=dict)
-    only_positive_rewards: bool = True
+    perception_every: int = setting(5, Integer(1))
+    num_goals: int = setting(3, Integer(1))
+    cmd_speed: float = setting(0.8, Number(0, low_open=True))
+    episode_length_s: float = setting(20.0, Number(0, low_open=True))
+    eval_episode_length_s: float = setting(30.0, Number(0, low_open=True))
+    goal_radius: float = setting(0.5, Number(0, low_open=True))
+    eval_goal_radius: float = setting(0.89, Number(0, low_open=True))
+    goal_reach_radius: float = setting(0.5, Number(0, low_open=True))
+    fall_roll_pitch: float = setting(1.0, Number(0, low_open=True))
+    fall_height_ratio: float = setting(0.5, Number(0))
+    timestep: float = setting(0.005, Number(0, low_open=True))
+    decimation: int = setting(4, Integer(1))
+    num_threads: int | None = setting(None, Integer(1, nullable=True))
+    physics: str = setting("mujoco", Choice(PHYSICS))
+    resident: bool | None = setting(None, Flag(nullable=True))
+    action_clip: float = setting(5.0, Number(0, low_open=True))
+    spawn_jitter_xy: float = setting(0.2, Number(0))
+    spawn_jitter_yaw: float = setting(0.3, Number(0))
+    swing_height: float = setting(0.1, Number(0, low_open=True))
+    gait_period: float = setting(0.0, Number(0))
+    gait_stance: float = setting(0.55, Number(0, 1, low_open=True, high_open=True))
+    gait_amplitude: float = setting(0.25, Number(0))
+    gait_feedforward: float = setting(0.0, Number(0))
+    feet_edge_from_level: int = setting(4, Integer(0))
+    reward_overrides: dict[str, float] = setting(None, MapOf(Choice(_reward_terms, what="reward term"), Number()),
+                                                 factory=dict)
+    only_positive_rewards: bool = setting(True, Flag())
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
-    eval_domain_rand: bool | tuple[str, ...] = False
-    seed: int = 0
-    device: str = "cpu"
+    eval_domain_rand: bool | tuple[str, ...] = setting(False, OneOf(
+        (Flag(), Choice(DOMAIN_RAND_TERMS), ListOf(Choice(DOMAIN_RAND_TERMS, what="domain randomisation term"))),
+        text=f"true, false or a non-empty list of terms from {list(DOMAIN_RAND_TERMS)}"))
+    seed: int = setting(0, Integer(0))
+    device: str = setting("cpu", Name())
 
     def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ValueError(f"unknown mode {self.mode!r}; valid modes: {list(MODES)}")
-        for name in ("num_envs", "variants", "perception_every", "num_goals", "decimation"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name in ("cmd_speed", "episode_length_s", "eval_episode_length_s", "goal_radius",
-                     "eval_goal_radius", "goal_reach_radius", "timestep", "action_clip", "swing_height"):
-            value = getattr(self, name)
-            if not value > 0:
-                raise ValueError(f"{name} must be positive, got {value!r}")
-        if not self.gait_period >= 0:
-            raise ValueError(f"gait_period must be >= 0 (0: no gait clock), got {self.gait_period!r}")
-        if not 0.0 < self.gait_stance < 1.0:
-            raise ValueError(f"gait_stance must lie in (0, 1), got {self.gait_stance!r}")
+        check_fields(self)  # each field against its kind (legoh_rl/kinds.py); below: how they combine
         for term in ("gait_contact", "gait_joint_ref"):
             if self.reward_overrides.get(term, 0.0) and not self.gait_period:
                 raise ValueError(f"reward term {term} needs a gait clock: set gait_period > 0 "
                                  f"(got gait_period={self.gait_period!r})")
-        if not self.gait_amplitude >= 0:
-            raise ValueError(f"gait_amplitude must be >= 0, got {self.gait_amplitude!r}")
-        if not self.gait_feedforward >= 0:
-            raise ValueError(f"gait_feedforward must be >= 0 (0: off), got {self.gait_feedforward!r}")
         if self.gait_feedforward and not self.gait_period:
             raise ValueError(f"gait_feedforward={self.gait_feedforward!r} needs a gait clock: set gait_period > 0 "
                              f"(got gait_period={self.gait_period!r})")
         if not isinstance(self.eval_domain_rand, bool):
             terms = self.eval_domain_rand
             self.eval_domain_rand = (terms,) if isinstance(terms, str) else tuple(terms)
-            if not self.eval_domain_rand:
-                raise ValueError("eval_domain_rand must be true, false or a non-empty tuple of terms, got () "
-                                 f"(terms: {list(DOMAIN_RAND_TERMS)})")
-            self.domain_rand.only(self.eval_domain_rand)  # names the unknown term
         if self.eval_domain_rand and not self.is_eval:
             raise ValueError(f"eval_domain_rand randomises the evaluation: it needs mode='eval', got mode={self.mode!r} "
                              "(training modes draw domain_rand already)")
-        if self.physics not in PHYSICS:
-            raise ValueError(f"unknown physics {self.physics!r}; valid: {list(PHYSICS)}")
         if self.resident and self.physics != "warp":
             raise ValueError(f"resident=True keeps the step on the simulation's device: it needs physics='warp', "
                              f"got physics={self.physics!r}")
         if self.depth_camera.source == "warp" and self.physics != "warp":
             raise ValueError(f"depth_camera.source='warp' casts the simulation's own rays: it needs physics='warp', "
                              f"got physics={self.physics!r}")
-        if not self.levels:
-            raise ValueError("levels must name at least one difficulty level")
+        if isinstance(self.categories, str):  # one category: a bare name
+            self.categories = (self.categories,)
         if self.category_weights is not None:
             weights = tuple(self.category_weights)
-            if len(weights) != len(self.categories) or not all(w > 0 for w in weights):
+            if len(weights) != len(self.categories):
                 raise ValueError(f"category_weights must hold one positive weight per category "
                                  f"{list(self.categories)}, got {list(weights)}")
         if self.pit_depths is not None:
@@ -195,8 +203,6 @@ class HikingEnvConfig:
                 raise ValueError(f"pit_depths={list(self.pit_depths)} is a training setting: the eval mode keeps the "
                                  "benchmark's pits (0.1 m on level 0, 1.0 m above)")
             self.pit_depths = tuple(float(d) for d in self.pit_depths)
-        if not isinstance(self.feet_edge_from_level, int) or self.feet_edge_from_level < 0:
-            raise ValueError(f"feet_edge_from_level must be an integer >= 0, got {self.feet_edge_from_level!r}")
 
     @property
     def depth_enabled(self) -> bool:

@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from legoh_rl.kinds import Flag, Number, check_fields, setting
+
 __all__ = ["CurriculumConfig", "Curriculum", "world_categories"]
 
 
@@ -25,11 +27,12 @@ __all__ = ["CurriculumConfig", "Curriculum", "world_categories"]
 class CurriculumConfig:
     """Thresholds as fractions of the expected distance (paper: 0.8 up, 0.4 down)."""
 
-    enabled: bool = True
-    up: float = 0.8
-    down: float = 0.4
+    enabled: bool = setting(True, Flag())
+    up: float = setting(0.8, Number(0))
+    down: float = setting(0.4, Number(0))
 
     def __post_init__(self) -> None:
+        check_fields(self)  # each field against its kind (legoh_rl/kinds.py)
         if not 0.0 <= self.down < self.up:
             raise ValueError(f"need 0 <= down < up, got down={self.down}, up={self.up}")
 

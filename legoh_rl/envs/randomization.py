@@ -22,35 +22,41 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from legoh_rl.kinds import Flag, Integer, ListOf, Number, check_fields, setting
+
 __all__ = ["DOMAIN_RAND_TERMS", "DomainRandConfig", "DomainRandomizer"]
 
 #: the switches of :class:`DomainRandConfig`, one per row of the table above
 DOMAIN_RAND_TERMS = ("friction", "base_mass", "base_com", "motor_strength", "push", "action_delay")
+_RANGE = ListOf(Number(), length=2)  # (low, high)
 
 
 @dataclass
 class DomainRandConfig:
-    """Switches and ranges (defaults: the paper's table)."""
+    """Switches and ranges (defaults: the paper's table); ``enabled``: the master switch (false:
+    every term off, whatever its own switch says; the nominal robot)."""
 
-    friction: bool = True
-    friction_range: tuple[float, float] = (0.6, 2.0)
-    base_mass: bool = True
-    base_mass_range: tuple[float, float] = (0.0, 3.0)
-    base_com: bool = True
-    base_com_range: tuple[float, float] = (-0.2, 0.2)
-    motor_strength: bool = True
-    motor_strength_range: tuple[float, float] = (0.8, 1.2)
-    push: bool = True
-    push_interval_s: float = 8.0
-    push_max_vel_xy: float = 0.5
-    action_delay: bool = True
-    delay_after_global_steps: int = 24 * 8000
-    delay_steps: int = 1
+    enabled: bool = setting(True, Flag())
+    friction: bool = setting(True, Flag())
+    friction_range: tuple[float, float] = setting((0.6, 2.0), _RANGE)
+    base_mass: bool = setting(True, Flag())
+    base_mass_range: tuple[float, float] = setting((0.0, 3.0), _RANGE)
+    base_com: bool = setting(True, Flag())
+    base_com_range: tuple[float, float] = setting((-0.2, 0.2), _RANGE)
+    motor_strength: bool = setting(True, Flag())
+    motor_strength_range: tuple[float, float] = setting((0.8, 1.2), _RANGE)
+    push: bool = setting(True, Flag())
+    push_interval_s: float = setting(8.0, Number(0, low_open=True))
+    push_max_vel_xy: float = setting(0.5, Number(0))
+    action_delay: bool = setting(True, Flag())
+    #: env steps per world after which the action delay starts (the paper's 24 x 8000; 0: at once)
+    delay_after_global_steps: int = setting(24 * 8000, Integer(0))
+    delay_steps: int = setting(1, Integer(0))
 
     @classmethod
     def off(cls) -> DomainRandConfig:
         """Every term disabled (nominal robot)."""
-        return cls(friction=False, base_mass=False, base_com=False, motor_strength=False, push=False, action_delay=False)
+        return cls(enabled=False)
 
     def only(self, terms: Iterable[str]) -> DomainRandConfig:
         """This config with the terms of :data:`DOMAIN_RAND_TERMS` named in ``terms`` on and the
@@ -62,14 +68,14 @@ class DomainRandConfig:
         return replace(self, **{t: t in terms for t in DOMAIN_RAND_TERMS})
 
     def __post_init__(self) -> None:
+        check_fields(self)  # each field against its kind (legoh_rl/kinds.py)
         for name in ("friction_range", "base_mass_range", "base_com_range", "motor_strength_range"):
             lo, hi = getattr(self, name)
             if not lo <= hi:
                 raise ValueError(f"{name} must be (low, high) with low <= high, got {(lo, hi)}")
-        if self.push_interval_s <= 0:
-            raise ValueError(f"push_interval_s must be positive, got {self.push_interval_s}")
-        if self.delay_steps < 0:
-            raise ValueError(f"delay_steps must be >= 0, got {self.delay_steps}")
+        if not self.enabled:
+            for term in DOMAIN_RAND_TERMS:
+                setattr(self, term, False)
 
 
 class DomainRandomizer:

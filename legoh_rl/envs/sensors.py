@@ -30,6 +30,7 @@ from legoh_rl.envs.native import (
 )
 from legoh_rl.envs.obstacle_rays import ObstacleRayCaster
 from legoh_rl.envs.robots import OBSTACLE_GEOM_GROUP, TERRAIN_GEOM_GROUPS
+from legoh_rl.kinds import Choice, Integer, Number, check_fields, setting
 
 __all__ = [
     "DepthCameraConfig",
@@ -78,28 +79,19 @@ class DepthCameraConfig:
             host march on 16 threads gave the student ~10x the env steps/s of Warp's rays).
     """
 
-    height: int = 64
-    width: int = 64
-    near: float = 0.2
-    far: float = 4.0
-    noise_std: float = 0.0
-    dropout: float = 0.0
-    march_samples: int = 12
-    march_refine: int = 3
-    backend: str = "auto"
-    source: str = "auto"
+    height: int = setting(64, Integer(1))
+    width: int = setting(64, Integer(1))
+    near: float = setting(0.2, Number(0))
+    far: float = setting(4.0, Number(0, low_open=True))
+    noise_std: float = setting(0.0, Number(0))
+    dropout: float = setting(0.0, Number(0, 1))
+    march_samples: int = setting(12, Integer(2))
+    march_refine: int = setting(3, Integer(0))
+    backend: str = setting("auto", Choice(MARCH_BACKENDS, what="depth backend"))
+    source: str = setting("auto", Choice(DEPTH_SOURCES, what="depth source"))
 
     def __post_init__(self) -> None:
-        if self.backend not in MARCH_BACKENDS:
-            raise ValueError(f"depth backend must be one of {MARCH_BACKENDS}, got {self.backend!r}")
-        if self.source not in DEPTH_SOURCES:
-            raise ValueError(f"depth source must be one of {DEPTH_SOURCES}, got {self.source!r}")
-        if self.height < 1 or self.width < 1:
-            raise ValueError(f"depth resolution must be positive, got {self.height}x{self.width}")
-        if self.march_samples < 2:
-            raise ValueError(f"march_samples must be >= 2, got {self.march_samples}")
-        if self.march_refine < 0:
-            raise ValueError(f"march_refine must be >= 0, got {self.march_refine}")
+        check_fields(self)  # each field against its kind (legoh_rl/kinds.py)
         if not 0.0 <= self.near < self.far:
             raise ValueError(f"need 0 <= near < far, got near={self.near}, far={self.far}")
 

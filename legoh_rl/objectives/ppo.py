@@ -25,6 +25,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.utils import ValueEstimators
 from torchrl.objectives.value import GAE
 
+from legoh_rl.kinds import Choice, Flag, Integer, Number, check_fields, setting
 from legoh_rl.objectives._common import VALID_MASK_KEY
 
 __all__ = [
@@ -59,45 +60,29 @@ class PPOConfig:
         num_epochs, num_minibatches: passes over each batch (5) and mini-batches per pass (4).
     """
 
-    clip_epsilon: float = 0.2
-    entropy_coeff: float = 0.01
-    critic_coeff: float = 1.0
-    loss_critic_type: str = "l2"
-    clip_value: bool = True
-    normalize_advantage: bool = True
-    gamma: float = 0.99
-    lmbda: float = 0.95
-    learning_rate: float = 1e-3
-    desired_kl: float = 0.01
-    min_lr: float = 1e-5
-    max_lr: float = 1e-2
-    max_grad_norm: float = 1.0
-    num_epochs: int = 5
-    num_minibatches: int = 4
+    clip_epsilon: float = setting(0.2, Number(0, 1, low_open=True, high_open=True))
+    entropy_coeff: float = setting(0.01, Number(0))
+    critic_coeff: float = setting(1.0, Number(0))
+    loss_critic_type: str = setting("l2", Choice(("l1", "l2", "smooth_l1")))
+    clip_value: bool = setting(True, Flag())
+    normalize_advantage: bool = setting(True, Flag())
+    gamma: float = setting(0.99, Number(0, 1))
+    lmbda: float = setting(0.95, Number(0, 1))
+    learning_rate: float = setting(1e-3, Number(0, low_open=True))
+    desired_kl: float = setting(0.01, Number(0, low_open=True))
+    min_lr: float = setting(1e-5, Number(0, low_open=True))
+    max_lr: float = setting(1e-2, Number(0, low_open=True))
+    max_grad_norm: float = setting(1.0, Number(0, low_open=True))
+    num_epochs: int = setting(5, Integer(1))
+    num_minibatches: int = setting(4, Integer(1))
 
     def __post_init__(self) -> None:
-        if not 0 < self.clip_epsilon < 1:
-            raise ValueError(f"PPOConfig.clip_epsilon must be in (0, 1), got {self.clip_epsilon}")
-        for name in ("gamma", "lmbda"):
-            v = getattr(self, name)
-            if not 0 <= v <= 1:
-                raise ValueError(f"PPOConfig.{name} must be in [0, 1], got {v}")
-        for name in ("entropy_coeff", "critic_coeff"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise ValueError(f"PPOConfig.{name} must be a finite number >= 0, got {v}")
-        if self.loss_critic_type not in ("l1", "l2", "smooth_l1"):
-            raise ValueError(
-                f"PPOConfig.loss_critic_type must be 'l1', 'l2' or 'smooth_l1', "
-                f"got {self.loss_critic_type!r}"
-            )
+        check_fields(self)  # each field against its kind (legoh_rl/kinds.py); below: how they combine
         if not 0 < self.min_lr <= self.learning_rate <= self.max_lr:
             raise ValueError(
                 f"PPOConfig needs 0 < min_lr <= learning_rate <= max_lr, got min_lr="
                 f"{self.min_lr}, learning_rate={self.learning_rate}, max_lr={self.max_lr}"
             )
-        if not self.desired_kl > 0:
-            raise ValueError(f"PPOConfig.desired_kl must be > 0, got {self.desired_kl}")
 
 
 def make_ppo_loss(

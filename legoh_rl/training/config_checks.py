@@ -2,10 +2,11 @@
 
 Every recipe's ``validate`` runs :func:`check_known_keys` (a key its config does not have, added
 with ``+key=...``, in an experiment's yaml or in a stage's overrides, is refused instead of
-ignored) and :func:`check_settings` with a table ``{dotted key: kind}``, kinds being
-:class:`Integer`, :class:`Number`, :class:`Flag`, :class:`Choice`, :class:`Name` and
-:class:`ListOf`. A setting absent from the config is left alone (its reader's default applies);
-the checks say nothing about how settings combine, which the recipes check themselves.
+ignored) and :func:`check_settings` with a table ``{dotted key: kind}`` for the settings that are
+not fields of a config dataclass (the kinds are :mod:`legoh_rl.kinds`'; the ``env`` and ``ppo``
+sections are checked by their dataclasses' own fields, :mod:`legoh_rl.training.config_store`). A
+setting absent from the config is left alone (its reader's default applies); the checks say
+nothing about how settings combine, which the recipes check themselves.
 
     check_settings(cfg, {"ppo.gamma": Number(0, 1), "env.levels": ListOf(Integer(0, 4))})
     # ValueError: ppo.gamma must be a number in [0, 1], got 1.5
@@ -13,158 +14,18 @@ the checks say nothing about how settings combine, which the recipes check thems
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
-from dataclasses import dataclass
 from pathlib import Path
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
 from omegaconf.errors import InterpolationResolutionError
 
-__all__ = ["Integer", "Number", "Flag", "Choice", "Name", "ListOf", "check_settings", "check_known_keys",
-           "recipe_keys"]
+from legoh_rl.kinds import Choice, Flag, Integer, Kind, ListOf, MapOf, Name, Number, OneOf, refusal
+
+__all__ = ["Integer", "Number", "Flag", "Choice", "Name", "ListOf", "MapOf", "OneOf", "Kind", "check_settings",
+           "check_known_keys", "recipe_keys"]
 
 _ABSENT = object()
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-def _is_number(value) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-@dataclass(frozen=True)
-class Integer:
-    """An integer (not a bool, not 2.0) in ``[minimum, maximum]`` (``maximum`` None: no bound);
-    null too when ``nullable``; ``text``: the message's words for it instead of the default's
-    (``">= 0 (0: off)"``)."""
-
-    minimum: int = 1
-    maximum: int | None = None
-    nullable: bool = False
-    text: str | None = None
-
-    def describe(self) -> str:
-        if self.text:
-            return self.text
-        if self.maximum is not None:
-            return f"an integer in [{self.minimum}, {self.maximum}]"
-        return "a positive integer" if self.minimum == 1 else f"an integer >= {self.minimum}"
-
-    def accepts(self, value) -> bool:
-        return _is_int(value) and value >= self.minimum and (self.maximum is None or value <= self.maximum)
-
-
-@dataclass(frozen=True)
-class Number:
-    """A finite number (an int or a float, not a bool) between ``low`` and ``high`` (None: no
-    bound; ``*_open``: the bound itself excluded); null too when ``nullable``."""
-
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-    nullable: bool = False
-
-    def describe(self) -> str:
-        if self.low is not None and self.high is not None:
-            return f"a number in {'(' if self.low_open else '['}{self.low}, {self.high}{')' if self.high_open else ']'}"
-        if self.low is not None:
-            return ("a positive number" if self.low == 0 and self.low_open
-                    else f"a number {'>' if self.low_open else '>='} {self.low}")
-        if self.high is not None:
-            return f"a number {'<' if self.high_open else '<='} {self.high}"
-        return "a finite number"
-
-    def accepts(self, value) -> bool:
-        if not _is_number(value) or not math.isfinite(value):
-            return False
-        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
-            return False
-        return self.high is None or (value < self.high if self.high_open else value <= self.high)
-
-
-@dataclass(frozen=True)
-class Flag:
-    """``true`` or ``false`` (not 0/1, not a string); null too when ``nullable``."""
-
-    nullable: bool = False
-
-    def describe(self) -> str:
-        return "true or false"
-
-    def accepts(self, value) -> bool:
-        return isinstance(value, bool)
-
-
-@dataclass(frozen=True)
-class Choice:
-    """One of ``choices`` (strings); null too when ``nullable``; ``what``: the noun of the message
-    (``env.robot: unknown robot 'atlas'; valid: [...]``; without: ``unknown <key> 'atlas'``)."""
-
-    choices: tuple[str, ...]
-    nullable: bool = False
-    what: str | None = None
-
-    def describe(self) -> str:
-        return f"one of {list(self.choices)}"
-
-    def accepts(self, value) -> bool:
-        return isinstance(value, str) and value in self.choices
-
-
-@dataclass(frozen=True)
-class Name:
-    """Free text: a name or a path (a string, or a number as YAML reads ``2024``; not a bool, a
-    list or a mapping; not empty); null too when ``nullable``. What it names is checked where it
-    is used (a checkpoint path exists, ...)."""
-
-    nullable: bool = False
-
-    def describe(self) -> str:
-        return "a non-empty string"
-
-    def accepts(self, value) -> bool:
-        return (isinstance(value, str) and value.strip() != "") or _is_number(value)
-
-
-@dataclass(frozen=True)
-class ListOf:
-    """A list of ``item`` (``nonempty``: at least one); ``single``: one bare item stands for a
-    list of it (``env.categories=gap``); null too when ``nullable``."""
-
-    item: Integer | Number | Choice | Name
-    nonempty: bool = True
-    single: bool = False
-    nullable: bool = False
-
-    def describe(self) -> str:
-        items = (f"names from {list(self.item.choices)}" if isinstance(self.item, Choice)
-                 else _plural(self.item.describe()))
-        return f"a {'non-empty ' if self.nonempty else ''}list of {items}"
-
-    def accepts(self, value) -> bool:
-        if self.single and self.item.accepts(value):
-            return True
-        if not isinstance(value, list | tuple):
-            return False
-        return (len(value) > 0 or not self.nonempty) and all(self.item.accepts(v) for v in value)
-
-
-def _plural(text: str) -> str:
-    """``a positive integer`` -> ``positive integers``; ``one of [...]`` stays."""
-    for article in ("a ", "an "):
-        if text.startswith(article):
-            text = text[len(article):]
-            for noun in ("integer", "number", "string"):
-                if noun in text:
-                    return text.replace(noun, noun + "s", 1)
-    return text
-
-
-Kind = Integer | Number | Flag | Choice | Name | ListOf
 
 
 def _plain(value):
@@ -188,25 +49,9 @@ def check_settings(cfg: Mapping, kinds: Mapping[str, Kind]) -> None:
                            else _select(cfg, key))
         except InterpolationResolutionError:  # ${other.key} of a bad value: that key's own check names it
             continue
-        if value is _ABSENT or (value is None and kind.nullable) or kind.accepts(value):
-            continue
-        raise ValueError(_refusal(key, kind, value))
-
-
-def _refusal(key: str, kind: Kind, value) -> str:
-    """Why ``value`` is not a ``kind``: the message of :func:`check_settings`."""
-    null = " or null" if kind.nullable else ""
-    if isinstance(kind, Choice):  # the project's wording for a name off a list
-        if kind.what:
-            return f"{key}: unknown {kind.what} {value!r}; valid: {list(kind.choices)}{null}"
-        return f"unknown {key} {value!r}; valid: {list(kind.choices)}{null}"
-    detail = ""
-    if isinstance(kind, ListOf) and isinstance(value, list | tuple):
-        bad = [v for v in value if not kind.item.accepts(v)]
-        if bad and isinstance(kind.item, Choice) and kind.item.what and isinstance(bad[0], str):
-            return f"{key}: unknown {kind.item.what} {bad[0]!r}; valid: {list(kind.item.choices)}"
-        detail = f": {bad[0]!r} is not {kind.item.describe()}" if bad else ""
-    return f"{key} must be {kind.describe()}, got {value!r}{detail}{' (or null)' if kind.nullable else ''}"
+        message = None if value is _ABSENT else refusal(key, kind, value)
+        if message:
+            raise ValueError(message)
 
 
 def _select(cfg: Mapping, key: str):
@@ -242,13 +87,46 @@ def check_known_keys(cfg: Mapping, known: Mapping, open_sections: tuple[str, ...
             check_known_keys(value, ref, open_sections, dotted, name)
 
 
-def recipe_keys(config_file: str | Path, sections: Mapping | None = None) -> dict:
-    """The settings of a recipe's yaml (``recipes/config/<recipe>.yaml``) as a nested dict, its
-    ``defaults`` list left out and ``sections`` (e.g. ``{"env": env_defaults()}``, what the
-    defaults list brings in) merged over it."""
+def recipe_keys(config_file: str | Path) -> dict:
+    """The settings of a recipe's yaml (``recipes/config/<recipe>.yaml``) as a nested dict: what
+    its ``defaults`` list brings in (a group's option from hydra's ConfigStore, e.g. ``env/hiking``,
+    or a yaml file beside the recipe's, e.g. ``shared/training.yaml``; ``# @package _global_`` at
+    the top level, else under the group's name; ``experiment`` and null options left out) with
+    the recipe's own settings merged over it."""
+    config_file = Path(config_file)
     raw = OmegaConf.to_container(OmegaConf.load(config_file), resolve=False)
-    raw.pop("defaults", None)
-    for key, section in (sections or {}).items():
-        mine = raw.get(key) or {}
-        raw[key] = {**section, **mine} if isinstance(mine, Mapping) else mine
-    return raw
+    out: dict = {}
+    for entry in raw.pop("defaults", None) or []:
+        if not isinstance(entry, Mapping):
+            continue  # _self_
+        for group, option in entry.items():
+            if option is None or group == "experiment":
+                continue
+            node, package = _group_option(config_file.parent, group, option)
+            _merge(out, node if package == "_global_" else {group: node})
+    _merge(out, raw)
+    return out
+
+
+def _group_option(config_dir: Path, group: str, option: str) -> tuple[dict, str]:
+    """``(node, package)`` of a defaults-list entry: a yaml file ``<config_dir>/<group>/<option>.yaml``
+    (its ``# @package`` line) or a node in hydra's ConfigStore (package: the group)."""
+    path = config_dir / group / f"{option}.yaml"
+    if path.is_file():
+        text = path.read_text()
+        first = next((line for line in text.splitlines() if line.strip()), "")
+        package = first.split("@package", 1)[1].strip() if "@package" in first else group
+        return OmegaConf.to_container(OmegaConf.create(text), resolve=False) or {}, package
+    from hydra.core.config_store import ConfigStore
+
+    stored = ConfigStore.instance().load(f"{group}/{option}.yaml")
+    return OmegaConf.to_container(stored.node, resolve=False), stored.package or group
+
+
+def _merge(into: dict, other: Mapping) -> None:
+    """``other`` merged into ``into`` key by key (mappings recursively, other values replace)."""
+    for key, value in other.items():
+        if isinstance(value, Mapping) and isinstance(into.get(key), dict):
+            _merge(into[key], value)
+        else:
+            into[key] = dict(value) if isinstance(value, Mapping) else value
