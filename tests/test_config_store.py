@@ -251,3 +251,19 @@ def test_committed_run_configs_upgrade_to_configs_today_builds():
         env = env_config(config["env"], state["meta"]["kind"], **gait_kwargs(state["meta"]))  # (a student's: its teacher's)
         assert env.robot == "h1"
         ppo_config(config["ppo"], ("weight",))
+
+
+def test_domain_rand_off_and_only_turn_single_terms_on():
+    """``off()`` switches every term off with the master switch on, so replacing one term turns
+    that term alone on; ``only`` turns the named terms on even in a section whose master switch
+    was off; the master switch off forces every term off."""
+    from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS
+
+    off = DomainRandConfig.off()
+    assert off.enabled and not any(getattr(off, t) for t in DOMAIN_RAND_TERMS)
+    pushes = dataclasses.replace(off, push=True)
+    assert [t for t in DOMAIN_RAND_TERMS if getattr(pushes, t)] == ["push"]
+    master_off = DomainRandConfig(enabled=False)
+    assert not any(getattr(master_off, t) for t in DOMAIN_RAND_TERMS)
+    only = master_off.only(["push", "action_delay"])
+    assert only.enabled and [t for t in DOMAIN_RAND_TERMS if getattr(only, t)] == ["push", "action_delay"]

@@ -68,7 +68,7 @@ def test_bracketed_march_is_exact_on_a_plane_and_agrees_with_the_unbracketed_one
 def test_too_few_march_samples_refused():
     from legoh_rl.envs.sensors import DepthCameraConfig
 
-    with pytest.raises(ValueError, match="march_samples must be >= 2, got 1"):
+    with pytest.raises(ValueError, match="march_samples must be an integer >= 2, got 1"):
         DepthCameraConfig(march_samples=1)
 
 
@@ -84,5 +84,5 @@ def test_refine_steps_locate_the_hit_on_a_curved_surface():
     # 64 samples bracket every first crossing; the refine steps then locate it inside the bracket
     errs = [np.abs(march_ground(origin, dirs, t_max, hm, samples=64, refine=r) - ref).max() for r in (0, 1, 3)]
     assert errs[0] > errs[1] > errs[2] and errs[2] < 1e-3
-    with pytest.raises(ValueError, match="march_refine must be >= 0, got -1"):
+    with pytest.raises(ValueError, match="march_refine must be an integer >= 0, got -1"):
         DepthCameraConfig(march_refine=-1)

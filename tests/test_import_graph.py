@@ -115,10 +115,22 @@ def cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
     return found
 
 
+#: modules at the package's root that every layer may import: they import nothing of legoh_rl
+#: (``kinds``: the settings' kinds the config dataclasses of envs/ and objectives/ declare)
+FOUNDATION = ("legoh_rl.kinds", "legoh_rl.openmp")
+
+
 def layer(module: str) -> str:
-    """The subpackage of legoh_rl a module belongs to (``legoh_rl.envs.trails.grid`` -> ``envs``)."""
+    """The subpackage of legoh_rl a module belongs to (``legoh_rl.envs.trails.grid`` -> ``envs``;
+    ``""`` for the package itself and the :data:`FOUNDATION` modules)."""
     parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+    return "" if module in FOUNDATION or len(parts) < 2 else parts[1]
+
+
+def test_foundation_modules_import_nothing_of_the_project():
+    graph = import_graph()
+    assert all(module in graph for module in FOUNDATION)
+    assert not {m: graph[m] for m in FOUNDATION if graph[m]}, "a foundation module imports the project"
 
 
 def test_the_reader_finds_deferred_imports_and_cycles(tmp_path):

@@ -55,8 +55,9 @@ class DomainRandConfig:
 
     @classmethod
     def off(cls) -> DomainRandConfig:
-        """Every term disabled (nominal robot)."""
-        return cls(enabled=False)
+        """Every term's switch off (nominal robot). The master switch stays on, so that
+        ``dataclasses.replace(DomainRandConfig.off(), push=True)`` randomises pushes alone."""
+        return cls(**{term: False for term in DOMAIN_RAND_TERMS})
 
     def only(self, terms: Iterable[str]) -> DomainRandConfig:
         """This config with the terms of :data:`DOMAIN_RAND_TERMS` named in ``terms`` on and the
@@ -65,7 +66,7 @@ class DomainRandConfig:
         bad = [t for t in terms if t not in DOMAIN_RAND_TERMS]
         if bad:
             raise ValueError(f"unknown domain randomisation term(s) {bad}; valid: {list(DOMAIN_RAND_TERMS)}")
-        return replace(self, **{t: t in terms for t in DOMAIN_RAND_TERMS})
+        return replace(self, enabled=True, **{t: t in terms for t in DOMAIN_RAND_TERMS})
 
     def __post_init__(self) -> None:
         check_fields(self)  # each field against its kind (legoh_rl/kinds.py)
