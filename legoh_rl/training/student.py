@@ -28,7 +28,8 @@ from legoh_rl.transforms import DepthHistory, GoalTiling, PerceptionHold
 
 __all__ = ["LOCOMOTIONS", "StudentPolicy", "locomotion_network", "make_student", "student_env", "student_networks"]
 
-#: the student's locomotion module: its own MLP trained by the recipe (``learned``, LEGO-H), or
+#: the student's locomotion module: its own network (``student.network``, a name in
+#: ``LOCOMOTION_NETWORKS``) trained by the recipe (``learned``, LEGO-H), or
 #: the teacher's actor, frozen, fed the perception's estimates of its latents (``oracle``, RMA)
 LOCOMOTIONS = ("learned", "oracle")
 #: the perception outputs the frozen oracle actor reads
