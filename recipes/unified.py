@@ -34,7 +34,8 @@ import hydra
 import torch
 from omegaconf import DictConfig
 
-from legoh_rl.modules.configs import PERCEPTION_PRESETS
+from legoh_rl.modules.configs import PERCEPTION_PRESETS, LocomotionConfig
+from legoh_rl.modules.locomotion import locomotion_network_class
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS
 from legoh_rl.objectives import DAggerLoss, HLMLoss, MaskedVAELoss
@@ -72,7 +73,7 @@ from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
 from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
-from legoh_rl.training.student import LOCOMOTIONS, make_student, student_env
+from legoh_rl.training.student import LOCOMOTIONS, locomotion_network, make_student, student_env
 from legoh_rl.training.weight_average import PolicyAverage
 
 register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
@@ -88,6 +89,7 @@ SETTINGS = {
     "student.preset": Choice(tuple(PERCEPTION_PRESETS)),
     "student.init_std": Number(0, low_open=True, nullable=True),
     "student.locomotion": Choice(LOCOMOTIONS),
+    "student.network": Name(),  # a name in LOCOMOTION_NETWORKS: check_locomotion
     "dagger_iters": Integer(0),
     "dagger_beta0": Number(0, 1),
     "dagger_decay_iters": Integer(1, nullable=True),
@@ -162,11 +164,13 @@ def frozen_oracle(cfg: DictConfig) -> bool:
 
 
 def check_locomotion(cfg: DictConfig) -> None:
-    """``student.locomotion``: ``learned`` (the student's own MLP) or ``oracle`` (RMA: the teacher's
-    actor, frozen, fed by an adapter that estimates its latents).
+    """``student.locomotion``: ``learned`` (the student's own network, ``student.network``) or
+    ``oracle`` (RMA: the teacher's actor, frozen, fed by an adapter that estimates its latents).
 
     Raises:
-        ValueError: an unknown value; ``oracle`` with a perception that does not estimate the
+        ValueError: an unknown value; a ``student.network`` that is not registered (the
+            message lists the registered ones), or other than ``mlp`` with ``oracle`` (the
+            teacher's network is used); ``oracle`` with a perception that does not estimate the
             privileged latent, with the DAgger replay window (it trains the locomotion module
             alone) or with HLM (a prior on the locomotion module's actions): each names the
             setting to change.
@@ -174,8 +178,16 @@ def check_locomotion(cfg: DictConfig) -> None:
     locomotion = cfg.student.get("locomotion", "learned")
     if locomotion not in LOCOMOTIONS:
         raise ValueError(f"unknown student.locomotion {locomotion!r}; valid: {list(LOCOMOTIONS)}")
+    network = str(cfg.student.network)
+    try:
+        locomotion_network_class(network)
+    except ValueError as err:
+        raise ValueError(f"student.network={network!r}: {err}") from None
     if not frozen_oracle(cfg):
         return
+    if network != LocomotionConfig.network:
+        raise ValueError(f"student.network={network} names the student's own locomotion network, which "
+                         "student.locomotion=oracle replaces by the teacher's actor: drop student.network")
     if cfg.student.perception not in ("rmah", "rmab"):
         raise ValueError(f"student.locomotion=oracle feeds the teacher's frozen actor with the perception's "
                          f"estimate of its privileged latent, which only rmah and rmab make; got "
@@ -186,6 +198,21 @@ def check_locomotion(cfg: DictConfig) -> None:
     if cfg.hlm.enabled:
         raise ValueError("student.locomotion=oracle freezes the locomotion module, whose actions HLM shapes: "
                          "set hlm.enabled=false")
+
+
+def check_network(meta: dict, run_meta: dict, path) -> None:
+    """Refuse a checkpoint of another learned locomotion network than this run's
+    ``student.network`` (a checkpoint that names none holds ``mlp``), before any weight is loaded.
+
+    Raises:
+        CheckpointError: names both networks and the setting.
+    """
+    if "locomotion_network" not in run_meta:  # a frozen oracle locomotion: the teacher's network
+        return
+    have, want = locomotion_network(meta), run_meta["locomotion_network"]
+    if have != want:
+        raise CheckpointError(f"{path} holds locomotion network {have!r}, this run has student.network={want}: "
+                              f"set student.network={have} to continue it")
 
 
 def check_teacher(state: dict, cfg: DictConfig, digest: str, path) -> None:
@@ -280,7 +307,8 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     oracle = frozen_oracle(cfg)
     oracle_config = dataclasses.asdict(teacher.networks.cfg) if oracle else None
     student = make_student(base, cfg.student.perception, cfg.student.preset, init_std=float(init_std),
-                           oracle_config=oracle_config, record_features=grad_fraction(cfg) < 1)
+                           oracle_config=oracle_config, record_features=grad_fraction(cfg) < 1,
+                           network=str(cfg.student.network))
     if oracle:  # RMA: the teacher's actor, frozen, is the student's locomotion
         student.actor.module[0].module.load_state_dict(teacher.networks.actor.state_dict())
     student.policy.to(device)  # perception (in its hold) and locomotion
@@ -297,6 +325,8 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     meta = {**policy_meta(base, "student"), "perception": cfg.student.perception, "preset": cfg.student.preset}
     if oracle:  # learned locomotion: no entries, as in every checkpoint made before the option
         meta.update(locomotion="oracle", oracle_config=oracle_config)
+    else:  # the network's name, by which evaluation and export rebuild it
+        meta["locomotion_network"] = str(cfg.student.network)
     rp = cfg.get("dagger_replay") or {}
     replay = None
     if int(rp.get("capacity", 0)) > 0:  # aggregated DAgger data for the locomotion module
@@ -346,7 +376,9 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
     """
     require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
     # the oracle's config is that of the teacher, which check_teacher compares by its digest
-    check_meta(state["meta"], {k: v for k, v in p.meta.items() if k not in ("branched_from", "oracle_config")}, path)
+    check_meta(state["meta"], {k: v for k, v in p.meta.items()
+                               if k not in ("branched_from", "oracle_config", "locomotion_network")}, path)
+    check_network(state["meta"], p.meta, path)
     check_teacher(state, p.cfg, p.teacher_sha256, path)
     hint = "student.perception, student.preset and the teacher must be the ones it was trained with"
     load_weights(p.student.perception, state["perception"], path, "perception weights", hint)

@@ -28,9 +28,12 @@ from legoh_rl.modules.goal_adaptation import (
 )
 from legoh_rl.modules.keys import AdaptationKeys, LocomotionKeys, OracleKeys, PerceptionKeys
 from legoh_rl.modules.locomotion import (
+    LOCOMOTION_NETWORKS,
     LocomotionNet,
     make_locomotion_actor,
+    make_locomotion_network,
     make_oracle_locomotion_actor,
+    register_locomotion_network,
 )
 from legoh_rl.modules.masked_vae import MaskedVAE, MaskedVAEConfig, make_masked_vae_module
 from legoh_rl.modules.mlp import build_mlp, unit_normalize
@@ -64,6 +67,9 @@ __all__ = [
     "LocomotionConfig",
     "LocomotionKeys",
     "LocomotionNet",
+    "LOCOMOTION_NETWORKS",
+    "make_locomotion_network",
+    "register_locomotion_network",
     "MaskedVAE",
     "MaskedVAEConfig",
     "OracleConfig",

@@ -426,13 +426,16 @@ class OracleConfig:
 
 @dataclass
 class LocomotionConfig:
-    """Student locomotion module: MLP over (z_uni, proprio, delta_g0, goal_next).
+    """Student locomotion module: a network over (z_uni, proprio, delta_g0, goal_next).
 
     Attributes:
         proprio_dim: D. num_actions: A. latent_dim: size of ``z_uni`` (32).
         goal_dim: size of ``delta_g0`` and ``goal_next`` ((cos, sin): 2).
         layers, activation, body_out_activation, init_std, loc_bound: as in
             :class:`OracleConfig` (same distribution and head as the oracle actor).
+        network: the class's name in
+            :data:`~legoh_rl.modules.locomotion.LOCOMOTION_NETWORKS` (``"mlp"``: the paper's MLP,
+            :class:`~legoh_rl.modules.locomotion.LocomotionNet`).
     """
 
     proprio_dim: int
@@ -444,9 +447,12 @@ class LocomotionConfig:
     body_out_activation: str = "tanh"
     init_std: float = 1.0
     loc_bound: float | None = None
+    network: str = "mlp"
 
     def validate(self) -> None:
         """Raise ``ValueError`` naming the first bad field."""
+        if not isinstance(self.network, str) or not self.network:
+            raise ValueError(f"LocomotionConfig.network must be a registered network's name, got {self.network!r}")
         for name in ("proprio_dim", "num_actions", "latent_dim", "goal_dim", "init_std"):
             _positive(f"LocomotionConfig.{name}", getattr(self, name))
         _positive_seq("LocomotionConfig.layers", self.layers)

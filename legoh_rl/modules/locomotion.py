@@ -8,6 +8,12 @@ The RMA baselines (paper Sec. "Benchmark": "a frozen oracle policy with an adapt
 to map [...] sensory data to oracle's latent space") use the oracle's own actor instead,
 frozen, reading the adapter's estimates in place of the privileged encoders' outputs and the
 expert goals (:func:`make_oracle_locomotion_actor`).
+
+Networks by name: :data:`LOCOMOTION_NETWORKS` maps ``LocomotionConfig.network`` (the unified
+recipe's ``student.network``) to a class built as ``cls(cfg)``; ``"mlp"`` is :class:`LocomotionNet`.
+Plug in your own with :func:`register_locomotion_network`; the recipe, the checkpoints
+(``meta["locomotion_network"]``), evaluation and the ONNX export then build it by that name
+through :func:`make_locomotion_network`.
 """
 
 from __future__ import annotations
@@ -23,7 +29,15 @@ from legoh_rl.modules.keys import LocomotionKeys
 from legoh_rl.modules.mlp import build_mlp
 from legoh_rl.modules.oracle import OracleActorNet
 
-__all__ = ["LocomotionNet", "make_locomotion_actor", "make_oracle_locomotion_actor"]
+__all__ = [
+    "LOCOMOTION_NETWORKS",
+    "LocomotionNet",
+    "locomotion_network_class",
+    "make_locomotion_actor",
+    "make_locomotion_network",
+    "make_oracle_locomotion_actor",
+    "register_locomotion_network",
+]
 
 
 class LocomotionNet(nn.Module):
@@ -48,16 +62,75 @@ class LocomotionNet(nn.Module):
         return self.head(self.body(torch.cat(inputs, dim=-1)))
 
 
+#: the student's locomotion network classes by name (``LocomotionConfig.network``, the unified
+#: recipe's ``student.network``). Each is built as ``cls(cfg: LocomotionConfig)`` and maps
+#: ``(z_uni (*B, cfg.latent_dim), proprio (*B, cfg.proprio_dim), delta_g0 (*B, cfg.goal_dim),
+#: goal_next (*B, cfg.goal_dim)) -> (loc, scale) (*B, cfg.num_actions)``, ``scale > 0`` (the
+#: actor's diagonal Gaussian; :class:`~legoh_rl.modules.distributions.GaussianHead` gives both).
+LOCOMOTION_NETWORKS: dict[str, type[nn.Module]] = {}
+
+
+def register_locomotion_network(name: str, cls: type[nn.Module] | None = None):
+    """Register a locomotion network class under ``name`` (also usable as
+    ``@register_locomotion_network(name)``); its contract is :data:`LOCOMOTION_NETWORKS`'s.
+    Returns ``cls``.
+
+    Raises:
+        ValueError: ``name`` is empty or not a string, names another class already, or ``cls``
+            is not an ``nn.Module`` subclass.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"a locomotion network's name must be a non-empty string, got {name!r}")
+
+    def register(c: type[nn.Module]) -> type[nn.Module]:
+        if not (isinstance(c, type) and issubclass(c, nn.Module)):
+            raise ValueError(f"locomotion network {name!r} must be an nn.Module subclass, got {c!r}")
+        if LOCOMOTION_NETWORKS.get(name, c) is not c:
+            raise ValueError(f"locomotion network {name!r} is already registered "
+                             f"({LOCOMOTION_NETWORKS[name].__qualname__})")
+        LOCOMOTION_NETWORKS[name] = c
+        return c
+
+    return register if cls is None else register(cls)
+
+
+register_locomotion_network("mlp", LocomotionNet)
+
+
+def locomotion_network_class(name: str) -> type[nn.Module]:
+    """The class registered as ``name`` in :data:`LOCOMOTION_NETWORKS`.
+
+    Raises:
+        ValueError: an unregistered name (the message lists the registered ones).
+    """
+    if name not in LOCOMOTION_NETWORKS:
+        raise ValueError(f"unknown locomotion network {name!r}; registered: {sorted(LOCOMOTION_NETWORKS)} "
+                         "(register_locomotion_network in legoh_rl.modules.locomotion adds one)")
+    return LOCOMOTION_NETWORKS[name]
+
+
+def make_locomotion_network(cfg: LocomotionConfig) -> nn.Module:
+    """The locomotion network ``cfg.network`` (a key of :data:`LOCOMOTION_NETWORKS`), untrained.
+
+    Raises:
+        ValueError: a bad field of ``cfg``, or an unregistered name (the message lists the
+            registered ones).
+    """
+    cfg.validate()
+    return locomotion_network_class(cfg.network)(cfg)
+
+
 def make_locomotion_actor(
     cfg: LocomotionConfig, keys: LocomotionKeys | None = None
 ) -> ProbabilisticActor:
-    """``ProbabilisticActor``: ``(z_uni, proprio, delta_g0, goal_next) -> loc, scale -> action``.
+    """``ProbabilisticActor``: ``(z_uni, proprio, delta_g0, goal_next) -> loc, scale -> action``,
+    the network :func:`make_locomotion_network` builds for ``cfg``.
 
     IndependentNormal with ``return_log_prob=True`` (writes ``action_log_prob``).
     """
     keys = keys or LocomotionKeys()
     net = TensorDictModule(
-        LocomotionNet(cfg),
+        make_locomotion_network(cfg),
         in_keys=[keys.z_uni, keys.proprio, keys.delta_g0, keys.goal_next],
         out_keys=[keys.loc, keys.scale],
     )

@@ -59,7 +59,7 @@ from legoh_rl.modules.configs import PerceptionConfig
 from legoh_rl.modules.oracle import make_oracle_actor
 from legoh_rl.training.builders import oracle_networks
 from legoh_rl.training.checkpoint import load_checkpoint
-from legoh_rl.training.student import hold_keys, student_networks
+from legoh_rl.training.student import hold_keys, locomotion_network, student_networks
 from legoh_rl.transforms import PerceptionHold
 
 __all__ = [
@@ -204,7 +204,7 @@ def student_modules(meta: Mapping) -> tuple[nn.Module, nn.Module, PerceptionConf
     size = int(layout["depth"][-1]) if "depth" in layout else None  # None: the preset's (a blind student)
     return student_networks(meta["perception"], meta["preset"], int(layout["proprio"][-1]), size,
                             int(layout["expert_goals"][-2]), int(meta["num_actions"]),
-                            oracle_config=meta.get("oracle_config"))
+                            oracle_config=meta.get("oracle_config"), network=locomotion_network(meta))
 
 
 def student_graphs(state: Mapping) -> tuple[TensorDictGraph, TensorDictGraph, PerceptionConfig]:

@@ -16,7 +16,7 @@ from legoh_rl.training.builders import eval_env, gait_kwargs, oracle_networks, p
 from legoh_rl.training.checkpoint import check_meta, load_checkpoint
 from legoh_rl.training.evaluation import EvalProtocol
 from legoh_rl.training.onnx_policy import load_onnx_policy
-from legoh_rl.training.student import make_student, student_env
+from legoh_rl.training.student import locomotion_network, make_student, student_env
 
 __all__ = ["ZeroPolicy", "load_policy", "load_cell_policy", "load_student"]
 
@@ -44,7 +44,8 @@ def load_student(state: dict, protocol, variants: int, seed: int, num_threads=No
     base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=not blind, trails=trails, device=device,
                     physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
-    student = make_student(base, meta["perception"], meta["preset"], oracle_config=meta.get("oracle_config"))
+    student = make_student(base, meta["perception"], meta["preset"], oracle_config=meta.get("oracle_config"),
+                           network=locomotion_network(meta))
     student.perception.load_state_dict(state["perception"])
     student.actor.load_state_dict(state["actor"])
     student.policy.to(device)

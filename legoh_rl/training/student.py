@@ -26,13 +26,21 @@ from legoh_rl.modules.oracle import oracle_network_class
 from legoh_rl.modules.perception import make_perception
 from legoh_rl.transforms import DepthHistory, GoalTiling, PerceptionHold
 
-__all__ = ["LOCOMOTIONS", "StudentPolicy", "make_student", "student_env", "student_networks"]
+__all__ = ["LOCOMOTIONS", "StudentPolicy", "locomotion_network", "make_student", "student_env", "student_networks"]
 
-#: the student's locomotion module: its own MLP trained by the recipe (``learned``, LEGO-H), or
+#: the student's locomotion module: its own network (``student.network``, a name in
+#: ``LOCOMOTION_NETWORKS``) trained by the recipe (``learned``, LEGO-H), or
 #: the teacher's actor, frozen, fed the perception's estimates of its latents (``oracle``, RMA)
 LOCOMOTIONS = ("learned", "oracle")
 #: the perception outputs the frozen oracle actor reads
 ORACLE_LOCOMOTION_INPUTS = ("z_uni", "priv_latent_uni", "goals_uni")
+
+
+def locomotion_network(meta: Mapping) -> str:
+    """The learned locomotion network a student checkpoint's ``meta`` block names
+    (``meta["locomotion_network"]``, the recipe's ``student.network``); a block that names none
+    holds the default, ``LocomotionConfig.network`` (``"mlp"``)."""
+    return str(meta.get("locomotion_network", LocomotionConfig.network))
 
 
 class StudentPolicy:
@@ -48,7 +56,8 @@ class StudentPolicy:
 
 
 def student_networks(perception: str, preset: str, proprio_dim: int, image_size: int | None, num_goals: int,
-                     num_actions: int, init_std: float = 1.0, oracle_config: Mapping | None = None):
+                     num_actions: int, init_std: float = 1.0, oracle_config: Mapping | None = None,
+                     network: str = LocomotionConfig.network):
     """``(perception, locomotion actor, perception config)`` of a student, untrained.
 
     Args:
@@ -61,17 +70,20 @@ def student_networks(perception: str, preset: str, proprio_dim: int, image_size:
             :class:`~legoh_rl.modules.configs.OracleConfig` fields for its actor, frozen
             (``oracle``, RMA), whose weights the caller loads. It needs a perception that
             estimates the privileged latent (``rmah``, ``rmab``).
+        network: the learned locomotion's class, a name in
+            :data:`~legoh_rl.modules.locomotion.LOCOMOTION_NETWORKS` (unused with ``oracle_config``).
 
     Raises:
-        ValueError: ``oracle_config`` with a perception that does not write
-            ``priv_latent_uni``, or an oracle whose sizes differ from the student's.
+        ValueError: an unregistered ``network`` (the message lists the registered ones);
+            ``oracle_config`` with a perception that does not write ``priv_latent_uni``, or an
+            oracle whose sizes differ from the student's.
     """
     sizes = {"num_goals": num_goals} | ({} if image_size is None else {"image_size": image_size})
     pcfg = perception_config(preset, proprio_dim, **sizes)
     perc = make_perception(perception, pcfg)
     if oracle_config is None:
         actor = make_locomotion_actor(LocomotionConfig(proprio_dim=proprio_dim, num_actions=num_actions,
-                                                       init_std=init_std))
+                                                       init_std=init_std, network=network))
         return perc, actor, pcfg
     missing = [k for k in ORACLE_LOCOMOTION_INPUTS if k not in perc.out_keys]
     if missing:
@@ -97,7 +109,7 @@ def hold_keys(perception) -> tuple[str, ...]:
 
 def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
                  init_std: float = 1.0, oracle_config: Mapping | None = None,
-                 record_features: bool = False) -> StudentPolicy:
+                 record_features: bool = False, network: str = LocomotionConfig.network) -> StudentPolicy:
     """Build the student sized for ``env`` (student or eval mode; depth on, or off for a
     perception that reads none: RMA-B).
 
@@ -114,11 +126,13 @@ def make_student(env: HikingEnv, perception: str = "tcvit", preset: str = "cpu",
             (``perception_features``) so that training passes can run the encoder on a fraction
             of the ticks (:class:`PerceptionHold`'s ``feature_key``); only for perceptions built
             as encoder then memory (``tcvit``, ``tcvit_ct``, ``vanilla``, ``eph``).
+        network: the learned locomotion network's name (:func:`student_networks`).
     """
     spec = env.observation_spec
     size = spec["depth"].shape[-1] if env.cfg.depth_enabled else env.cfg.depth_camera.width
     perc, actor, pcfg = student_networks(perception, preset, spec["proprio"].shape[-1], size,
-                                         spec["expert_goals"].shape[-2], env.A, init_std, oracle_config)
+                                         spec["expert_goals"].shape[-2], env.A, init_std, oracle_config,
+                                         network)
     if not env.cfg.depth_enabled and {"depth", "depth_goal_stack"} & set(perc.in_keys):
         raise ValueError(f"perception {perception!r} reads depth: build the env with the depth camera "
                          "(mode 'student' or 'eval', depth not false)")
