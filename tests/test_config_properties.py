@@ -41,6 +41,7 @@ from legoh_rl.envs.hiking import HikingEnv  # noqa: E402
 from legoh_rl.envs.rewards import REWARD_FUNCTIONS  # noqa: E402
 from legoh_rl.envs.robots import ROBOTS  # noqa: E402
 from legoh_rl.kinds import Choice, Flag, Integer, ListOf, MapOf, Name, Number, OneOf, field_kind  # noqa: E402
+from legoh_rl.modules.locomotion import LOCOMOTION_NETWORKS  # noqa: E402
 from legoh_rl.modules.oracle import ORACLE_NETWORKS  # noqa: E402
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS  # noqa: E402
 from legoh_rl.objectives.ppo import PPOConfig  # noqa: E402
@@ -242,6 +243,7 @@ KINDS = {
         "student.preset": bad_choice(("cpu", "paper")),
         "student.init_std": bad_num(0, low_open=True, null=True),
         "student.locomotion": bad_choice(("learned", "oracle")),
+        "student.network": bad_choice(tuple(LOCOMOTION_NETWORKS)),
         "dagger_iters": bad_int(0),
         "dagger_beta0": bad_num(0, 1),
         "dagger_decay_iters": bad_int(1, null=True),
