@@ -5,6 +5,11 @@ from __future__ import annotations
 
 import pytest
 
+from legoh_rl.envs.rewards import REWARD_TERMS
+from legoh_rl.envs.trails.primitives import PRIMITIVES
+from legoh_rl.modules.locomotion import LOCOMOTION_NETWORKS
+from legoh_rl.modules.oracle import ORACLE_NETWORKS
+from legoh_rl.modules.perception import PERCEPTION_BUILDERS
 from legoh_rl.registry import Registry
 
 
@@ -97,3 +102,13 @@ def test_a_plain_assignment_stays_a_dicts():
     assert reg.lookup("small") is Large
     assert reg.pop("small") is Large and not reg
 
+
+def test_the_projects_tables_are_registries():
+    for table, what in ((ORACLE_NETWORKS, "oracle network"), (LOCOMOTION_NETWORKS, "locomotion network"),
+                        (PERCEPTION_BUILDERS, "perception network"), (PRIMITIVES, "terrain primitive"),
+                        (REWARD_TERMS, "reward term")):
+        assert isinstance(table, Registry) and table.what == what and table
+        name = next(iter(table))
+        assert table.lookup(name) is table[name]
+        with pytest.raises(ValueError, match=rf"^unknown {what} 'nope'; registered: \[.*{name!r}"):
+            table.lookup("nope")
