@@ -7,6 +7,7 @@ configs and helpers; the recipes with many tests of their own have their own fil
 import json
 import math
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -636,8 +637,12 @@ def test_experiment_oracle_h1_footholds_is_stage_2_of_trails(tmp_path):
     oracle_ppo.validate(cfg)
     env = env_config(cfg.env, mode="oracle")
     assert env.category_weights == (1.0, 1.5, 1.0, 1.5, 0.6) and env.feet_edge_from_level == 1
-    # the feedforward gain keeps stage 1's slope: 1 / 40M frames from 0.922
-    assert list(cfg.feedforward_anneal) == [0, 36_900_000] and cfg.env.gait_feedforward == 0.922
+    # the feedforward gain goes on along stage 1's line (1 -> 0 over its frames 10M-50M) from where it ended
+    assert cfg.feedforward_anneal == "inherit"
+    schedule, source = oracle_ppo.feedforward_schedule(cfg)
+    assert schedule == FeedforwardSchedule(0.9222176, (0, 36_888_704)), schedule
+    assert source == "checkpoint.init runs/oracle_h1_trails/last.pt at its 13111296 frames"
+    assert schedule.gain == load_checkpoint(cfg.checkpoint.init)["meta"]["gait_feedforward"]
 
 
 def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(tmp_path):
@@ -648,11 +653,29 @@ def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(
     oracle_ppo.validate(cfg)
     env = env_config(cfg.env, mode="oracle")
     assert env.pit_depths == (0.1, 0.3, 0.6, 1.0, 1.0) and env.category_weights == (1.0, 1.5, 1.0, 1.5, 0.6)
-    # the init checkpoint's gain, annealed on stage 2's slope (0.922 over 36.9M frames)
+    # the init checkpoint's gain, annealed on stage 2's slope (0.922 over 36.9M frames, as its run recorded)
     start = load_checkpoint(cfg.checkpoint.init)
-    assert math.isclose(cfg.env.gait_feedforward, start["meta"]["gait_feedforward"])
-    assert list(cfg.feedforward_anneal) == [0, 36_900_000 - start["frames"]]
-    assert math.isclose(cfg.env.gait_feedforward / cfg.feedforward_anneal[1], 0.922 / 36_900_000)
+    assert cfg.feedforward_anneal == "inherit"
+    schedule, _ = oracle_ppo.feedforward_schedule(cfg)
+    assert schedule.gain == start["meta"]["gait_feedforward"] == 0.5082723642276423
+    assert schedule.anneal == (0, 36_900_000 - start["frames"]) == (0, 20_341_920)
+    assert math.isclose(schedule.gain / schedule.anneal[1], 0.922 / 36_900_000)
+
+
+@pytest.mark.parametrize("run", ["oracle_h1_footholds", "oracle_h1_pit_rungs"])
+def test_a_resumed_inheriting_stage_keeps_the_schedule_its_own_state_recorded(tmp_path, run):
+    """The committed run states were started with the gains copied by hand: resumed under
+    ``feedforward_anneal: inherit`` they go on with the schedule their own config recorded, so the
+    gain their resume collects with is the one their meta block holds."""
+    shutil.copy(ROOT / "runs" / run / "last.pt", tmp_path / "last.pt")
+    cfg = cfg_of("oracle_ppo", [f"experiment={run}", f"checkpoint.dir={tmp_path}", "checkpoint.resume=auto"])
+    oracle_ppo.validate(cfg)
+    schedule, source = oracle_ppo.feedforward_schedule(cfg)
+    state = load_checkpoint(tmp_path / "last.pt")
+    recorded = state["config"]
+    assert schedule == FeedforwardSchedule(recorded["env"]["gait_feedforward"], tuple(recorded["feedforward_anneal"]))
+    assert schedule.at(state["frames"]) == state["meta"]["gait_feedforward"]
+    assert source == f"the run's own {tmp_path / 'last.pt'}"
 
 
 def _with_state(path, **state):
