@@ -50,12 +50,19 @@ from legoh_rl.training.checkpoint import (
     resume_path,
     set_rng_state,
 )
-from legoh_rl.training.config_checks import Integer, ListOf, Name, Number
+from legoh_rl.training.config_checks import Choice, Integer, ListOf, Name, Number, OneOf
 from legoh_rl.training.config_store import env_config, ppo_config, register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
-from legoh_rl.training.schedules import check_anneal, feedforward_gain
+from legoh_rl.training.schedules import (
+    INHERIT,
+    RECORD_KEY,
+    FeedforwardSchedule,
+    check_anneal,
+    inherited_schedule,
+    recorded_schedule,
+)
 from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 
@@ -69,7 +76,9 @@ SETTINGS = {
     "model.max_std": Number(0, low_open=True, nullable=True),
     "model.network": Name(),  # a name in ORACLE_NETWORKS: oracle_network_class
     "checkpoint.init": Name(nullable=True),
-    "feedforward_anneal": ListOf(Integer(0), nullable=True),  # [start, end]: check_anneal
+    # [start, end] (check_anneal), or inherit: feedforward_schedule
+    "feedforward_anneal": OneOf((ListOf(Integer(0)), Choice((INHERIT,))), "[start_frames, end_frames] or inherit",
+                                nullable=True),
     "update_threads": Integer(1, nullable=True),
 }
 
@@ -107,15 +116,49 @@ def validate(cfg: DictConfig) -> None:
     check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.checkpoint.get("init") is not None and not Path(cfg.checkpoint.init).is_file():
         raise FileNotFoundError(f"checkpoint.init: no policy at {cfg.checkpoint.init}")
-    if check_anneal(cfg.get("feedforward_anneal")) is not None and not cfg.env.get("gait_feedforward"):
+    if cfg.get("feedforward_anneal") == INHERIT:
+        schedule, _ = feedforward_schedule(cfg)  # refuses a checkpoint that records none, naming it
+        if schedule.gain and not cfg.env.get("gait_period"):
+            raise ValueError(f"feedforward_anneal=inherit: the inherited gain {schedule.gain} needs a gait clock, "
+                             f"set env.gait_period > 0 (got {cfg.env.get('gait_period')!r})")
+    elif check_anneal(cfg.get("feedforward_anneal")) is not None and not cfg.env.get("gait_feedforward"):
         raise ValueError("feedforward_anneal needs env.gait_feedforward > 0 (the gain it anneals from), "
                          f"got env.gait_feedforward={cfg.env.get('gait_feedforward')!r}")
 
 
-def set_feedforward(env, cfg: DictConfig, frames: int) -> None:
-    """The env's gait feedforward gain at ``frames`` run frames (``feedforward_anneal``; no-op without)."""
-    if cfg.get("feedforward_anneal") is not None:
-        env.set_gait_feedforward(feedforward_gain(cfg.env.gait_feedforward, frames, cfg.feedforward_anneal))
+def feedforward_schedule(cfg: DictConfig) -> tuple[FeedforwardSchedule | None, str]:
+    """``(schedule, where it comes from)``: the gait feedforward gain this run follows over its own
+    frames, ``None`` without ``feedforward_anneal`` (the env's gain stays).
+
+    ``[start, end]``: ``env.gait_feedforward`` annealed over that window. ``inherit``: a resumed run
+    goes on with the schedule its own checkpoint recorded; a fresh one with ``checkpoint.init``'s,
+    moved on by the init's frame count (the gain it had at its last frame, the same slope), so that
+    a stage started from another run's checkpoint continues its anneal with no copied numbers.
+
+    Raises:
+        ValueError: ``inherit`` without ``checkpoint.init`` on a fresh run, or from a checkpoint
+            that records no schedule (the message names the file).
+    """
+    anneal = cfg.get("feedforward_anneal")
+    if anneal is None:
+        return None, "none"
+    if anneal != INHERIT:
+        return FeedforwardSchedule(float(cfg.env.gait_feedforward), check_anneal(anneal)), "env.gait_feedforward"
+    resume = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    if resume is not None:
+        return recorded_schedule(load_checkpoint(resume), resume), f"the run's own {resume}"
+    init = cfg.checkpoint.get("init")
+    if init is None:
+        raise ValueError("feedforward_anneal=inherit goes on with checkpoint.init's gait feedforward schedule: "
+                         "set checkpoint.init (got null)")
+    state = load_checkpoint(init)
+    return inherited_schedule(state, init), f"checkpoint.init {init} at its {state['frames']} frames"
+
+
+def set_feedforward(env, schedule: FeedforwardSchedule | None, frames: int) -> None:
+    """The env's gait feedforward gain at ``frames`` run frames of ``schedule`` (None: no-op)."""
+    if schedule is not None:
+        env.set_gait_feedforward(schedule.at(frames))
 
 
 def check_network(state: dict, networks, path: str, what: str) -> None:
@@ -184,6 +227,7 @@ class OracleTrainer(Trainer):
         self.cfg, self.env, self.collect_env, self.behaviour, self.device = cfg, env, env, actor, env.device
         self.networks, self.actor, self.loss, self.gae, self.optim, self.sched = networks, actor, loss, gae, optim, sched
         self.update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
+        self.feedforward: FeedforwardSchedule | None = None  # None: the env's gain stays (build sets it)
 
     @property
     def meta(self) -> dict:
@@ -191,7 +235,7 @@ class OracleTrainer(Trainer):
         return policy_meta(self.env, "oracle")
 
     def before_collect(self) -> None:
-        set_feedforward(self.env, self.cfg, self.frames)
+        set_feedforward(self.env, self.feedforward, self.frames)
 
     def sync_workers(self, workers, first: bool) -> None:
         """The feedforward gain of the next batch, in every worker's env."""
@@ -206,7 +250,9 @@ class OracleTrainer(Trainer):
     def state_dict(self) -> dict:
         return {"loss": self.loss.state_dict(), "actor": self.actor.state_dict(),
                 "networks": self.networks.state_dict(), "oracle_config": self.networks.cfg.__dict__,
-                "optim": self.optim.state_dict(), "sched": self.sched.state_dict()}
+                "optim": self.optim.state_dict(), "sched": self.sched.state_dict(),
+                # what a resume or a later stage with feedforward_anneal=inherit goes on with
+                RECORD_KEY: (self.feedforward or FeedforwardSchedule(self.env.cfg.gait_feedforward)).record()}
 
     def postfix(self, stats: dict) -> dict[str, str]:
         return {"reward": f"{stats['reward/total']:.3f}", "level": f"{stats['curriculum/mean_level']:.2f}",
@@ -229,15 +275,18 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     networks.to(device)  # actor and critic are views of these modules
     loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device)
     trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
+    trainer.feedforward, source = feedforward_schedule(cfg)
+    if trainer.feedforward is not None:
+        print(f"gait feedforward: {trainer.feedforward.describe()} (from {source})")
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is None:
-        set_feedforward(env, cfg, 0)
+        set_feedforward(env, trainer.feedforward, 0)
         if cfg.checkpoint.get("init") is not None:
             init_networks(networks, env, cfg.checkpoint.init)
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
-        set_feedforward(env, cfg, state["frames"])
+        set_feedforward(env, trainer.feedforward, state["frames"])
         expected = policy_meta(env, "oracle")
         if cfg.get("feedforward_anneal") is not None:  # saved one batch before the gain resumes at
             expected.pop("gait_feedforward", None)

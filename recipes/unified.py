@@ -84,7 +84,7 @@ register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfi
 SETTINGS = {
     "teacher": Name(),
     # the registry is the one list of networks, read when checked: a network registered by a
-    # caller (PERCEPTION_BUILDERS[name] = builder) is a valid student.perception too
+    # caller (PERCEPTION_BUILDERS.register(name, builder)) is a valid student.perception too
     "student.perception": Choice(lambda: sorted(PERCEPTION_BUILDERS)),
     "student.preset": Choice(tuple(PERCEPTION_PRESETS)),
     "student.init_std": Number(0, low_open=True, nullable=True),
