@@ -19,6 +19,7 @@ from legoh_rl.objectives import (
     make_ppo_loss,
     policy_kl,
 )
+from legoh_rl.objectives.ppo import minibatch_keys
 
 OBS, ACT = 3, 2
 
@@ -131,7 +132,7 @@ def test_policy_kl_reads_old_params_from_batch():
     with torch.no_grad():
         new = actor(td.select("obs"))
     expected = gaussian_kl(td["loc"], td["scale"], new["loc"], new["scale"]).mean()
-    torch.testing.assert_close(kl, expected)
+    assert torch.equal(kl, expected)  # the parameter network alone gives the full actor's values
     assert kl > 0
     assert (td == snapshot).all()  # the batch keeps the rollout loc/scale
     # padding mask: masked samples do not count
@@ -140,6 +141,31 @@ def test_policy_kl_reads_old_params_from_batch():
     td[("collector", "mask")] = mask
     expected = gaussian_kl(td["loc"], td["scale"], new["loc"], new["scale"])[:, :3].mean()
     torch.testing.assert_close(policy_kl(actor, td), expected)
+
+
+def test_minibatch_keys_give_the_loss_what_the_whole_batch_gives():
+    actor, critic = make_actor_critic()
+    loss, gae = make_ppo_loss(actor, critic)
+    keys = minibatch_keys(loss, "loc", "scale")
+    assert keys == ["obs", "action", "action_log_prob", "advantage", "value_target", "state_value",
+                    ("collector", "mask"), "shifted_valid", "loc", "scale"]
+    td = rollout(actor)
+    mask = torch.ones(4, 8, 1, dtype=torch.bool)
+    mask[:, 6:] = False  # padded steps: the selection must keep the mask the loss honours
+    td[("collector", "mask")] = mask
+    td["unread"] = torch.full((4, 8, 1), float("nan"))
+    with torch.no_grad():
+        gae(td)
+    flat = td.reshape(-1)
+    small = td.select(*keys, strict=False).reshape(-1)
+    assert "unread" not in small.keys() and ("next", "obs") not in small.keys(True)
+    idx = torch.randperm(32, generator=torch.Generator().manual_seed(0))[:16]
+    whole, part = loss(flat[idx]), loss(small[idx])
+    for k in ("loss_objective", "loss_critic", "loss_entropy"):
+        assert torch.equal(whole[k], part[k]), k
+    whole_grads = torch.autograd.grad(whole["loss_objective"] + whole["loss_critic"], list(loss.parameters()))
+    part_grads = torch.autograd.grad(part["loss_objective"] + part["loss_critic"], list(loss.parameters()))
+    assert all(torch.equal(a, b) for a, b in zip(whole_grads, part_grads, strict=True))
 
 
 def test_adaptive_kl_scheduler():

@@ -33,6 +33,7 @@ __all__ = [
     "PPOConfig",
     "gaussian_kl",
     "make_ppo_loss",
+    "minibatch_keys",
     "policy_kl",
     "set_loss_coefficients",
 ]
@@ -83,6 +84,28 @@ class PPOConfig:
                 f"PPOConfig needs 0 < min_lr <= learning_rate <= max_lr, got min_lr="
                 f"{self.min_lr}, learning_rate={self.learning_rate}, max_lr={self.max_lr}"
             )
+
+
+def minibatch_keys(loss: ClipPPOLoss, *extra: NestedKey) -> list[NestedKey]:
+    """The entries ``loss`` reads from a minibatch once GAE has written ``advantage``,
+    ``value_target`` and ``state_value`` (plus ``extra``, e.g. the rollout ``loc`` / ``scale``
+    that :func:`policy_kl` reads), each once.
+
+    Indexing a batch's minibatches out of ``batch.select(*minibatch_keys(loss), strict=False)``
+    instead of the whole batch gives the loss the same tensors while skipping every entry it
+    never reads (the next observations, reward terms, episode counters, ...): indexing costs one
+    gather per entry and minibatch. The padding masks the loss honours (``("collector", "mask")``,
+    ``shifted_valid``: torchrl's own list, ``_loss_mask_keys``) are included.
+    """
+    keys = loss.tensor_keys
+    wanted = [*loss.actor_network.in_keys, *loss.critic_network.in_keys, keys.action, keys.sample_log_prob,
+              keys.advantage, keys.value_target, keys.value, *loss._loss_mask_keys(), *extra]
+    unique: list[NestedKey] = []
+    for key in wanted:
+        key = key[0] if isinstance(key, tuple) and len(key) == 1 else key  # ("obs",) is "obs"
+        if key not in unique:
+            unique.append(key)
+    return unique
 
 
 def make_ppo_loss(
@@ -174,10 +197,12 @@ def policy_kl(
     The old parameters are read from ``tensordict`` at ``old_loc_key`` / ``old_scale_key``
     (written by the collector, ``(*B, A)``); the new ones by running ``actor`` (no grad) on the
     entries it reads, which leaves ``tensordict`` untouched, and reading ``new_loc_key`` /
-    ``new_scale_key`` from its output. Returns the scalar mean of :func:`gaussian_kl` over the
-    samples whose bool mask at ``mask_key`` (default ``("collector", "mask")``,
-    :data:`~legoh_rl.objectives.VALID_MASK_KEY`) is True (all samples if the key is absent
-    or None).
+    ``new_scale_key`` from its output. A probabilistic actor (one with ``get_dist_params``, as
+    torchrl's ``ProbabilisticActor``) runs its parameter network only: no action is drawn and no
+    log-probability computed, which changes none of the values. Returns the scalar mean of
+    :func:`gaussian_kl` over the samples whose bool mask at ``mask_key`` (default
+    ``("collector", "mask")``, :data:`~legoh_rl.objectives.VALID_MASK_KEY`) is True (all
+    samples if the key is absent or None).
     """
     old_loc = tensordict.get(old_loc_key, None)
     old_scale = tensordict.get(old_scale_key, None)
@@ -188,7 +213,7 @@ def policy_kl(
         )
     with torch.no_grad():
         inputs = tensordict.select(*actor.in_keys, strict=False)
-        out = actor(inputs)
+        out = actor.get_dist_params(inputs) if hasattr(actor, "get_dist_params") else actor(inputs)
         new_loc, new_scale = out.get(new_loc_key), out.get(new_scale_key)
         kl = gaussian_kl(old_loc, old_scale, new_loc, new_scale)
         mask = tensordict.get(mask_key, None) if mask_key is not None else None
