@@ -37,6 +37,8 @@ from legoh_rl.objectives.ppo import (
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
+    load_optimizer,
+    make_adam,
     make_env,
     make_oracle,
     policy_meta,
@@ -75,14 +77,15 @@ SETTINGS = {
 }
 
 
-def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu"):
+def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu", fused: bool = False):
     """Loss, GAE, optimiser and KL scheduler of the ``ppo`` section ``cfg`` (every
     :class:`~legoh_rl.objectives.ppo.PPOConfig` field); the loss's buffers (and GAE's) on
-    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their parameters)."""
+    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their
+    parameters); ``fused``: fused Adam (the ``fused_adam`` setting, :func:`make_adam`)."""
     ppo_cfg = ppo_config(cfg)
     loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
     loss.to(device)
-    optim = torch.optim.Adam(loss.parameters(), lr=ppo_cfg.learning_rate)
+    optim = make_adam(loss.parameters(), ppo_cfg.learning_rate, fused)
     sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
     return loss, gae, optim, sched
 
@@ -235,7 +238,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std),
                                           network=str(cfg.model.network))
     networks.to(device)  # actor and critic are views of these modules
-    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device)
+    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device, fused=bool(cfg.get("fused_adam")))
     trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is None:
@@ -256,7 +259,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
                      f"set model.layers={list(have) if have else '<its sizes>'} to resume it (this run has "
                      f"model.layers={list(networks.cfg.actor_layers)})")
         set_loss_coefficients(loss, ppo_config(cfg.ppo))  # the config's weights, not the checkpoint's
-        optim.load_state_dict(state["optim"])
+        load_optimizer(optim, state["optim"])  # its moments, this run's fused_adam
         sched.load_state_dict(state["sched"])
         levels = env.curriculum.levels.copy()
         env.load_state_dict(state["env"])

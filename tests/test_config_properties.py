@@ -222,6 +222,7 @@ TRAINING = {
     "checkpoint.keep_curriculum": bad_flag(),
     "checkpoint.overwrite": bad_flag(),
     "torch_threads": bad_int(1),
+    "fused_adam": bad_flag(),
 }
 KINDS = {
     "oracle_ppo": {
@@ -251,7 +252,6 @@ KINDS = {
         "encoder_grad_fraction": bad_num(0, 1, low_open=True),
         "dagger_minibatches": bad_int(1, null=True),
         "minibatch_split": bad_choice(("permute", "strided")),
-        "fused_adam": bad_flag(),
         "dagger_replay.capacity": bad_int(0),
         "dagger_replay.batch_size": bad_int(1),
         "dagger_replay.steps": bad_int(1),

@@ -1,6 +1,6 @@
-"""The oracle's PPO update (``recipes/oracle_ppo.py``, issue 52's speed-ups): each speed-up that
-claims the same numerics is held to the bit against the plain loop it replaced, on a batch of
-a tiny env."""
+"""The oracle's PPO update (``recipes/oracle_ppo.py``, issue 52's speed-ups) on a tiny env: the
+speed-ups that keep the numerics are held to the bit against the plain loop they replaced; the
+switches that change them (``fused_adam``) to what they claim."""
 
 import copy
 import sys
@@ -12,6 +12,7 @@ from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from legoh_rl.objectives.ppo import gaussian_kl
+from legoh_rl.training.checkpoint import load_checkpoint
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 sys.path.insert(0, str(RECIPES))
@@ -88,3 +89,31 @@ def test_ppo_update_matches_the_whole_batch_loop(trainer):
     stepped = trained_state(t, batch, oracle_ppo.ppo_update, t.cfg)
     assert_same(stepped, trained_state(t, batch, reference_update, t.cfg))
     assert not all(torch.equal(v, t.loss.state_dict()[k]) for k, v in stepped[0].items())  # it did train
+
+
+def test_fused_adam_changes_the_rounding_only(tmp_path):
+    """``fused_adam`` (a switch, off by default): two iterations from the same seed end within
+    float rounding of the per-tensor Adam's parameters, not on them."""
+    states = {}
+    for fused in (False, True):
+        ck = tmp_path / f"fused{fused}"
+        oracle_ppo.train(cfg_of(TINY + ["collector.total_frames=64", f"checkpoint.dir={ck}", f"fused_adam={fused}"]))
+        saved = load_checkpoint(ck / "last.pt")
+        assert saved["iteration"] == 2 and saved["optim"]["param_groups"][0]["fused"] is (True if fused else None)
+        states[fused] = saved["loss"]
+    for k, v in states[False].items():
+        torch.testing.assert_close(states[True][k], v, rtol=0, atol=1e-5, msg=k)
+
+
+def test_a_resumed_run_takes_its_own_fused_adam(tmp_path):
+    """torch's loader would take the checkpoint's ``fused``; the recipe keeps the run's setting
+    (and the checkpoint's moments)."""
+    for first, then in ((False, True), (True, False)):
+        ck = tmp_path / f"from{first}"
+        oracle_ppo.train(cfg_of(TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}", f"fused_adam={first}"]))
+        saved = load_checkpoint(ck / "last.pt")["optim"]
+        parts = oracle_ppo.build(cfg_of(TINY + ["collector.total_frames=64", f"checkpoint.dir={ck}",
+                                                "checkpoint.resume=auto", f"fused_adam={then}"]))
+        assert all(bool(g["fused"]) is then for g in parts.optim.param_groups)
+        for i, s in parts.optim.state_dict()["state"].items():
+            assert all(torch.equal(v, saved["state"][i][k]) for k, v in s.items()), i
