@@ -18,6 +18,7 @@ from __future__ import annotations
 import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when torch loads)
 
 # isort: split
+import math
 from pathlib import Path
 
 import hydra
@@ -32,6 +33,7 @@ from legoh_rl.objectives.ppo import (
     make_ppo_loss,
     minibatch_keys,
     policy_kl,
+    rollout_kl,
     set_loss_coefficients,
 )
 from legoh_rl.training import runner
@@ -53,7 +55,7 @@ from legoh_rl.training.checkpoint import (
     resume_path,
     set_rng_state,
 )
-from legoh_rl.training.config_checks import Integer, ListOf, Name, Number
+from legoh_rl.training.config_checks import Choice, Integer, ListOf, Name, Number
 from legoh_rl.training.config_store import env_config, ppo_config, register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
@@ -63,6 +65,9 @@ from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 
 register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
+
+#: ``kl_measure``'s choices: which KL to the rollout policy moves the learning rate (:func:`ppo_update`)
+KL_MEASURES = ("after_step", "loss_forward")
 
 #: this recipe's own settings by kind (beside builders' TRAINING_SETTINGS and the env and ppo
 #: sections' dataclass fields);
@@ -74,6 +79,7 @@ SETTINGS = {
     "checkpoint.init": Name(nullable=True),
     "feedforward_anneal": ListOf(Integer(0), nullable=True),  # [start, end]: check_anneal
     "update_threads": Integer(1, nullable=True),
+    "kl_measure": Choice(KL_MEASURES),
 }
 
 
@@ -151,33 +157,55 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
     """Epochs x mini-batches of clipped PPO on one collected ``[N, T]`` batch; returns mean diagnostics.
 
     GAE writes ``advantage``, ``value_target`` and ``state_value`` into ``data``; the minibatches
-    are then indexed out of the entries the loss and :func:`policy_kl` read only
-    (:func:`minibatch_keys`): the same tensors as indexing the whole batch, without gathering the
-    next observations, reward terms and counters 20 times an update (~9% of its time on 256 x 24
-    steps, BENCHMARKS.md).
+    are then indexed out of the entries the loss and the KL read only (:func:`minibatch_keys`):
+    the same tensors as indexing the whole batch, without gathering the next observations, reward
+    terms and counters 20 times an update (~9% of its time on 256 x 24 steps, BENCHMARKS.md).
+
+    The KL to the rollout policy that moves the learning rate (:class:`AdaptiveKLScheduler`) is
+    ``kl_measure``'s:
+
+    * ``after_step`` (default): the stepped actor's on the minibatch it stepped on
+      (:func:`policy_kl`: one more, gradient-free, actor pass a minibatch); it sets the next
+      step's learning rate;
+    * ``loss_forward``: rsl_rl's order: the loss's own forward pass (``policy_loc`` /
+      ``policy_scale``, :func:`rollout_kl`: the parameters before this minibatch's step) sets
+      this step's learning rate; no actor pass is added (~13% of the update). The batch's first
+      minibatch leaves the rate as it is: no step has been taken on the batch yet, so its KL is
+      the rollout policy's to itself (~0, which would raise the rate every update).
+
+    ``train/kl`` is the mean of the KLs that moved the learning rate.
     """
+    kl_measure = cfg.get("kl_measure") or "after_step"
+    if kl_measure not in KL_MEASURES:
+        raise ValueError(f"kl_measure must be one of {list(KL_MEASURES)}, got {kl_measure!r}")
     with torch.no_grad():
         gae(data)
     flat = data.select(*minibatch_keys(loss, "loc", "scale"), strict=False).reshape(-1)
     sums: dict[str, float] = {}
-    count = 0
+    count = kl_count = 0
+    kl_sum, lr = 0.0, sched.lr
     for _ in range(cfg.ppo.num_epochs):
         for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
             mb = flat[idx]
             out = loss(mb)
+            if kl_measure == "loss_forward" and count > 0:  # the parameters after the previous step
+                kl = rollout_kl(mb, out["policy_loc"], out["policy_scale"])
+                lr, kl_sum, kl_count = sched.step(kl), kl_sum + float(kl), kl_count + 1
             total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
             optim.zero_grad()
             total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
             optim.step()
-            kl = policy_kl(actor, mb)
-            lr = sched.step(kl)
+            if kl_measure == "after_step":
+                kl = policy_kl(actor, mb)
+                lr, kl_sum, kl_count = sched.step(kl), kl_sum + float(kl), kl_count + 1
             for key, value in (("loss/objective", out["loss_objective"]), ("loss/critic", out["loss_critic"]),
-                               ("loss/entropy", out["loss_entropy"]), ("train/kl", kl), ("train/grad_norm", grad_norm),
+                               ("loss/entropy", out["loss_entropy"]), ("train/grad_norm", grad_norm),
                                ("train/clip_fraction", out.get("clip_fraction", torch.tensor(0.0)))):
                 sums[key] = sums.get(key, 0.0) + float(value.detach() if torch.is_tensor(value) else value)
             count += 1
     stats = {k: v / count for k, v in sums.items()}
+    stats["train/kl"] = kl_sum / kl_count if kl_count else math.nan  # loss_forward on one minibatch: none
     stats["train/lr"] = lr
     stats["train/explained_variance"] = explained_variance(data["state_value"], data["value_target"])
     stats["train/action_std"] = float(flat["scale"].mean())

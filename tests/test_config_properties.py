@@ -235,6 +235,7 @@ KINDS = {
         "checkpoint.init": bad_name(null=True),
         "feedforward_anneal": bad_list(st.integers(0, 10), bad_int(0), null=True),
         "update_threads": bad_int(1, null=True),
+        "kl_measure": bad_choice(("after_step", "loss_forward")),
     },
     "unified": {
         **TRAINING,

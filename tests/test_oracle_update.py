@@ -11,7 +11,7 @@ import torch
 from hydra import compose, initialize_config_dir
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from legoh_rl.objectives.ppo import gaussian_kl
+from legoh_rl.objectives.ppo import gaussian_kl, policy_kl
 from legoh_rl.training.checkpoint import load_checkpoint
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
@@ -89,6 +89,45 @@ def test_ppo_update_matches_the_whole_batch_loop(trainer):
     stepped = trained_state(t, batch, oracle_ppo.ppo_update, t.cfg)
     assert_same(stepped, trained_state(t, batch, reference_update, t.cfg))
     assert not all(torch.equal(v, t.loss.state_dict()[k]) for k, v in stepped[0].items())  # it did train
+
+
+def rsl_rl_order_update(data, loss, gae, optim, sched, actor, cfg) -> None:
+    """rsl_rl's order, by hand: before each step but the batch's first, the KL of the parameters
+    about to step (a separate actor pass) sets that step's learning rate."""
+    with torch.no_grad():
+        gae(data)
+    flat = data.reshape(-1)
+    first = True
+    for _ in range(cfg.ppo.num_epochs):
+        for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
+            mb = flat[idx]
+            if not first:
+                sched.step(policy_kl(actor, mb))
+            first = False
+            out = loss(mb)
+            total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+            optim.zero_grad()
+            total.backward()
+            torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
+            optim.step()
+
+
+def test_kl_measure_loss_forward_is_rsl_rls_order_without_the_actor_pass(trainer, monkeypatch):
+    t, batch = trainer
+    cfg = cfg_of(TINY + ["kl_measure=loss_forward", "checkpoint.dir=unused"])
+    measured, kls = [], []
+    real_kl, real_step = oracle_ppo.policy_kl, t.sched.step
+    monkeypatch.setattr(oracle_ppo, "policy_kl", lambda *a, **k: measured.append(1) or real_kl(*a, **k))
+    monkeypatch.setattr(t.sched, "step", lambda kl: kls.append(float(kl)) or real_step(kl))
+    stepped = trained_state(t, batch, oracle_ppo.ppo_update, cfg)
+    assert not measured  # the KL came from the loss's own forward pass ...
+    assert len(kls) == 2 * 2 - 1 and all(k > 0 for k in kls)  # ... before every step but the batch's first
+    assert_same(stepped, trained_state(t, batch, rsl_rl_order_update, cfg))
+
+
+def test_kl_measure_must_be_a_known_one(tmp_path):
+    with pytest.raises(ValueError, match=r"unknown kl_measure 'before'; valid: \['after_step', 'loss_forward'\]"):
+        oracle_ppo.train(cfg_of(TINY + ["kl_measure=before", f"checkpoint.dir={tmp_path}"]))
 
 
 def test_fused_adam_changes_the_rounding_only(tmp_path):
