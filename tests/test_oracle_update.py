@@ -37,6 +37,16 @@ def trainer(tmp_path_factory):
     return t, batch
 
 
+def plain_step(mb, loss, optim, cfg) -> None:
+    """One clipped-PPO step on minibatch ``mb``, as the recipe takes it (gradient clipped)."""
+    out = loss(mb)
+    total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+    optim.zero_grad()
+    total.backward()
+    torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
+    optim.step()
+
+
 def reference_update(data, loss, gae, optim, sched, actor, cfg) -> None:
     """The update as it was before issue 52: minibatches indexed out of the whole batch (next
     observations, reward terms and all), the KL from a full actor call (sampling under the
@@ -47,12 +57,7 @@ def reference_update(data, loss, gae, optim, sched, actor, cfg) -> None:
     for _ in range(cfg.ppo.num_epochs):
         for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
             mb = flat[idx]
-            out = loss(mb)
-            total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
-            optim.zero_grad()
-            total.backward()
-            torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
-            optim.step()
+            plain_step(mb, loss, optim, cfg)
             with torch.no_grad():
                 new = actor(mb.select(*actor.in_keys))
             sched.step(gaussian_kl(mb["loc"], mb["scale"], new["loc"], new["scale"]).mean())
@@ -104,12 +109,7 @@ def rsl_rl_order_update(data, loss, gae, optim, sched, actor, cfg) -> None:
             if not first:
                 sched.step(policy_kl(actor, mb))
             first = False
-            out = loss(mb)
-            total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
-            optim.zero_grad()
-            total.backward()
-            torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
-            optim.step()
+            plain_step(mb, loss, optim, cfg)
 
 
 def test_kl_measure_loss_forward_is_rsl_rls_order_without_the_actor_pass(trainer, monkeypatch):
