@@ -11,6 +11,10 @@ checkpoints are written atomically and can be resumed.
     python recipes/oracle_ppo.py checkpoint.init=checkpoints/oracle_h1.pt   # warm start from a policy
     python recipes/oracle_ppo.py device=cuda collector.workers=4  # a GPU for the networks, 4 collecting processes
     python recipes/oracle_ppo.py collector.workers=8 collector.backend=ray collector.ray.address=auto  # a Ray cluster
+    python recipes/oracle_ppo.py kl_measure=loss_forward      # rsl_rl's KL order: ~20% less update time, other learning
+
+The PPO update's cost and its switches (``kl_measure``, ``fused_adam``): BENCHMARKS.md, "The
+oracle's update".
 """
 
 from __future__ import annotations
@@ -169,7 +173,7 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
       step's learning rate;
     * ``loss_forward``: rsl_rl's order: the loss's own forward pass (``policy_loc`` /
       ``policy_scale``, :func:`rollout_kl`: the parameters before this minibatch's step) sets
-      this step's learning rate; no actor pass is added (~13% of the update). The batch's first
+      this step's learning rate; no actor pass is added (~20% of the update). The batch's first
       minibatch leaves the rate as it is: no step has been taken on the batch yet, so its KL is
       the rollout policy's to itself (~0, which would raise the rate every update).
 
