@@ -11,6 +11,10 @@ checkpoints are written atomically and can be resumed.
     python recipes/oracle_ppo.py checkpoint.init=checkpoints/oracle_h1.pt   # warm start from a policy
     python recipes/oracle_ppo.py device=cuda collector.workers=4  # a GPU for the networks, 4 collecting processes
     python recipes/oracle_ppo.py collector.workers=8 collector.backend=ray collector.ray.address=auto  # a Ray cluster
+    python recipes/oracle_ppo.py kl_measure=loss_forward      # rsl_rl's KL order: ~20% less update time, other learning
+
+The PPO update's cost and its switches (``kl_measure``, ``fused_adam``): BENCHMARKS.md, "The
+oracle's update".
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when torch loads)
 
 # isort: split
+import math
 from pathlib import Path
 
 import hydra
@@ -30,12 +35,16 @@ from legoh_rl.modules.oracle import oracle_network_class
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
     make_ppo_loss,
+    minibatch_keys,
     policy_kl,
+    rollout_kl,
     set_loss_coefficients,
 )
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
+    load_optimizer,
+    make_adam,
     make_env,
     make_oracle,
     policy_meta,
@@ -68,6 +77,9 @@ from legoh_rl.training.stats import explained_variance
 
 register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
 
+#: ``kl_measure``'s choices: which KL to the rollout policy moves the learning rate (:func:`ppo_update`)
+KL_MEASURES = ("after_step", "loss_forward")
+
 #: this recipe's own settings by kind (beside builders' TRAINING_SETTINGS and the env and ppo
 #: sections' dataclass fields);
 #: model.layers has its own check (require_layers)
@@ -80,17 +92,19 @@ SETTINGS = {
     "feedforward_anneal": OneOf((ListOf(Integer(0)), Choice((INHERIT,))), "[start_frames, end_frames] or inherit",
                                 nullable=True),
     "update_threads": Integer(1, nullable=True),
+    "kl_measure": Choice(KL_MEASURES),
 }
 
 
-def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu"):
+def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu", fused: bool = False):
     """Loss, GAE, optimiser and KL scheduler of the ``ppo`` section ``cfg`` (every
     :class:`~legoh_rl.objectives.ppo.PPOConfig` field); the loss's buffers (and GAE's) on
-    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their parameters)."""
+    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their
+    parameters); ``fused``: fused Adam (the ``fused_adam`` setting, :func:`make_adam`)."""
     ppo_cfg = ppo_config(cfg)
     loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
     loss.to(device)
-    optim = torch.optim.Adam(loss.parameters(), lr=ppo_cfg.learning_rate)
+    optim = make_adam(loss.parameters(), ppo_cfg.learning_rate, fused)
     sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
     return loss, gae, optim, sched
 
@@ -187,29 +201,58 @@ def init_networks(networks, env, path: str) -> None:
 
 
 def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
-    """Epochs x mini-batches of clipped PPO on one collected batch; returns mean diagnostics."""
+    """Epochs x mini-batches of clipped PPO on one collected ``[N, T]`` batch; returns mean diagnostics.
+
+    GAE writes ``advantage``, ``value_target`` and ``state_value`` into ``data``; the minibatches
+    are then indexed out of the entries the loss and the KL read only (:func:`minibatch_keys`):
+    the same tensors as indexing the whole batch, without gathering the next observations, reward
+    terms and counters 20 times an update (~9% of its time on 256 x 24 steps, BENCHMARKS.md).
+
+    The KL to the rollout policy that moves the learning rate (:class:`AdaptiveKLScheduler`) is
+    ``kl_measure``'s:
+
+    * ``after_step`` (default): the stepped actor's on the minibatch it stepped on
+      (:func:`policy_kl`: one more, gradient-free, actor pass a minibatch); it sets the next
+      step's learning rate;
+    * ``loss_forward``: rsl_rl's order: the loss's own forward pass (``policy_loc`` /
+      ``policy_scale``, :func:`rollout_kl`: the parameters before this minibatch's step) sets
+      this step's learning rate; no actor pass is added (~20% of the update). The batch's first
+      minibatch leaves the rate as it is: no step has been taken on the batch yet, so its KL is
+      the rollout policy's to itself (~0, which would raise the rate every update).
+
+    ``train/kl`` is the mean of the KLs that moved the learning rate.
+    """
+    kl_measure = cfg.get("kl_measure") or "after_step"
+    if kl_measure not in KL_MEASURES:
+        raise ValueError(f"kl_measure must be one of {list(KL_MEASURES)}, got {kl_measure!r}")
     with torch.no_grad():
         gae(data)
-    flat = data.reshape(-1)
+    flat = data.select(*minibatch_keys(loss, "loc", "scale"), strict=False).reshape(-1)
     sums: dict[str, float] = {}
-    count = 0
+    count = kl_count = 0
+    kl_sum, lr = 0.0, sched.lr
     for _ in range(cfg.ppo.num_epochs):
         for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
             mb = flat[idx]
             out = loss(mb)
+            if kl_measure == "loss_forward" and count > 0:  # the parameters after the previous step
+                kl = rollout_kl(mb, out["policy_loc"], out["policy_scale"])
+                lr, kl_sum, kl_count = sched.step(kl), kl_sum + float(kl), kl_count + 1
             total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
             optim.zero_grad()
             total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
             optim.step()
-            kl = policy_kl(actor, mb)
-            lr = sched.step(kl)
+            if kl_measure == "after_step":
+                kl = policy_kl(actor, mb)
+                lr, kl_sum, kl_count = sched.step(kl), kl_sum + float(kl), kl_count + 1
             for key, value in (("loss/objective", out["loss_objective"]), ("loss/critic", out["loss_critic"]),
-                               ("loss/entropy", out["loss_entropy"]), ("train/kl", kl), ("train/grad_norm", grad_norm),
+                               ("loss/entropy", out["loss_entropy"]), ("train/grad_norm", grad_norm),
                                ("train/clip_fraction", out.get("clip_fraction", torch.tensor(0.0)))):
                 sums[key] = sums.get(key, 0.0) + float(value.detach() if torch.is_tensor(value) else value)
             count += 1
     stats = {k: v / count for k, v in sums.items()}
+    stats["train/kl"] = kl_sum / kl_count if kl_count else math.nan  # loss_forward on one minibatch: none
     stats["train/lr"] = lr
     stats["train/explained_variance"] = explained_variance(data["state_value"], data["value_target"])
     stats["train/action_std"] = float(flat["scale"].mean())
@@ -273,7 +316,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std),
                                           network=str(cfg.model.network))
     networks.to(device)  # actor and critic are views of these modules
-    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device)
+    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device, fused=bool(cfg.get("fused_adam")))
     trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
     trainer.feedforward, source = feedforward_schedule(cfg)
     if trainer.feedforward is not None:
@@ -297,7 +340,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
                      f"set model.layers={list(have) if have else '<its sizes>'} to resume it (this run has "
                      f"model.layers={list(networks.cfg.actor_layers)})")
         set_loss_coefficients(loss, ppo_config(cfg.ppo))  # the config's weights, not the checkpoint's
-        optim.load_state_dict(state["optim"])
+        load_optimizer(optim, state["optim"])  # its moments, this run's fused_adam
         sched.load_state_dict(state["sched"])
         levels = env.curriculum.levels.copy()
         env.load_state_dict(state["env"])
