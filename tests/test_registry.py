@@ -84,12 +84,15 @@ def test_an_unknown_name_lists_the_registered_ones_and_the_hint():
 
 
 def test_any_entry_without_base_and_first_entries_registered_in_order():
-    reg = Registry("builder", entries={"b": len, "a": print})
-    assert list(reg) == ["b", "a"] and reg.lookup("a") is print
-    with pytest.raises(ValueError, match=r"builder 'a' is already registered \(print\)"):
-        reg.register("a", len)
-    with pytest.raises(ValueError, match=r"builder 'a' is already registered \(print\)"):
-        Registry("builder", entries={"a": print}).register("a", 3)
+    # module-level functions of this file, not builtins: another test's library (Ray) may replace
+    # builtins.print for the rest of the session
+    reg = Registry("builder", entries={"b": shapes, "a": test_a_plain_assignment_stays_a_dicts})
+    assert list(reg) == ["b", "a"] and reg.lookup("a") is test_a_plain_assignment_stays_a_dicts
+    taken = r"builder 'a' is already registered \(test_a_plain_assignment_stays_a_dicts\)"
+    with pytest.raises(ValueError, match=taken):
+        reg.register("a", shapes)
+    with pytest.raises(ValueError, match=taken):
+        Registry("builder", entries={"a": test_a_plain_assignment_stays_a_dicts}).register("a", 3)
     with pytest.raises(ValueError, match=r"a registry's noun must be a non-empty string, got ''"):
         Registry("")
 
