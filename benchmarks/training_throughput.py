@@ -1,7 +1,8 @@
 """Env steps/s of training against the env alone, in one run (H1).
 
     python benchmarks/training_throughput.py [--oracle-iters 8] [--student-iters 6] [--skip-student]
-        [--skip-oracle] [--oracle-update-threads 1 2] [--students student_h1_trails student_h1]
+        [--skip-oracle] [--oracle-update-threads 1 2] [--oracle-settings "" "kl_measure=loss_forward"]
+        [--repeats 2] [--students student_h1_trails student_h1]
 
 Each training rate is printed as env steps/s and as a ratio to its env alone (same worlds, mode
 and threads):
@@ -12,7 +13,10 @@ and threads):
   runs, and averaged, so drifting machine load hits both sides;
 * (b) oracle training, ``recipes/oracle_ppo.py experiment=oracle_h1_footholds`` (256 worlds on
   the whole benchmark, [256, 128, 64] MLPs, 5 epochs x 4 minibatches), once per
-  ``--oracle-update-threads`` count (torch threads of the PPO update; collection keeps 1);
+  ``--oracle-update-threads`` count (torch threads of the PPO update; collection keeps 1) and
+  per ``--oracle-settings`` entry (extra overrides, space-separated; ``""``: the experiment as
+  it is), the whole set ``--repeats`` times in turn (A B A B: drifting load hits every setting
+  alike); a row per count and setting, its rate over all its runs;
 * (c) student training, ``recipes/unified.py experiment=<name>`` for each ``--students``
   experiment, with ``checkpoints/oracle_h1.pt`` as the teacher: the DAgger phase as it runs once
   the teacher's share has decayed (the student acts, the teacher labels: ``dagger_decay_iters=1``),
@@ -71,12 +75,17 @@ def env_rate(cfg: HikingEnvConfig, steps: int) -> float:
         env.close()
 
 
+def timed_frames(run_dir: Path) -> tuple[int, float]:
+    """(env steps, seconds of collection + update) of a run's metrics, its first iteration left out."""
+    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
+    return rows[-1]["step"] - rows[0]["step"], sum(r["train/collect_s"] + r["train/update_s"] for r in rows[1:])
+
+
 def training_rate(run_dir: Path) -> tuple[float, int]:
     """(env steps/s, iterations timed) from a run's metrics, its first iteration left out."""
-    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-    timed = rows[1:]
-    seconds = sum(r["train/collect_s"] + r["train/update_s"] for r in timed)
-    return (timed[-1]["step"] - rows[0]["step"]) / seconds, len(timed)
+    frames, seconds = timed_frames(run_dir)
+    rows = (run_dir / "metrics.jsonl").read_text().splitlines()
+    return frames / seconds, len(rows) - 1
 
 
 def student_env(name: str):
@@ -107,6 +116,10 @@ def main() -> None:
     p.add_argument("--env-steps", type=int, default=200, help="timed control steps of the env alone")
     p.add_argument("--oracle-update-threads", type=int, nargs="+", default=[1],
                    help="update_threads of the oracle runs (one row per count)")
+    p.add_argument("--oracle-settings", nargs="+", default=[""],
+                   help='extra overrides of the oracle runs, one row each ("" = none; "a=1 b=2": two overrides)')
+    p.add_argument("--repeats", type=int, default=1,
+                   help="oracle runs per count and setting, alternated (A B A B)")
     p.add_argument("--students", nargs="+", default=["student_h1_trails", "student_h1"],
                    help="unified experiments to measure (one pair of rows each)")
     p.add_argument("--skip-student", action="store_true")
@@ -114,18 +127,29 @@ def main() -> None:
     args = p.parse_args()
     if any(k < 1 for k in args.oracle_update_threads):
         p.error(f"--oracle-update-threads must be positive, got {args.oracle_update_threads}")
+    if args.repeats < 1:
+        p.error(f"--repeats must be positive, got {args.repeats}")
     teacher = ROOT / "checkpoints" / "oracle_h1.pt"
     before = alone_rates(args)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for k in [] if args.skip_oracle else args.oracle_update_threads:
-            run = Path(tmp) / f"oracle{k}"
-            frames = 256 * 24 * (args.oracle_iters + 1)
-            oracle_ppo.train(compose_cfg("oracle_ppo", ["experiment=oracle_h1_footholds", f"checkpoint.dir={run}",
-                                                        "checkpoint.init=null", f"collector.total_frames={frames}",
-                                                        f"update_threads={k}", "logger.backend=csv"]))
-            rows.append((f"(b) oracle training, 256 worlds, whole benchmark, update on {k} thread(s)", "oracle",
-                         *training_rate(run)))
+        timed: dict[tuple[int, str], list[tuple[int, float]]] = {}  # (threads, setting): (frames, seconds) a run
+        variants = [] if args.skip_oracle else [(k, v) for k in args.oracle_update_threads for v in args.oracle_settings]
+        for rep in range(args.repeats):
+            for n, (k, setting) in enumerate(variants):
+                run = Path(tmp) / f"oracle{k}-{n}-{rep}"
+                frames = 256 * 24 * (args.oracle_iters + 1)
+                oracle_ppo.train(compose_cfg("oracle_ppo", ["experiment=oracle_h1_footholds", f"checkpoint.dir={run}",
+                                                            "checkpoint.init=null", f"collector.total_frames={frames}",
+                                                            f"update_threads={k}", "logger.backend=csv",
+                                                            *setting.split()]))
+                timed.setdefault((k, setting), []).append(timed_frames(run))
+        for (k, setting), runs in timed.items():
+            frames, seconds = map(sum, zip(*runs, strict=True))
+            each = " / ".join(f"{f / s:,.0f}" for f, s in runs)
+            rows.append((f"(b) oracle training, 256 worlds, whole benchmark, update on {k} thread(s)"
+                         + (f", `{setting}`" if setting else "") + (f" (runs: {each})" if len(runs) > 1 else ""),
+                         "oracle", frames / seconds, len(runs) * args.oracle_iters))
         for name in [] if args.skip_student else args.students:
             cfg, env_cfg = student_env(name)
             frames = env_cfg.num_envs * int(cfg.collector.steps_per_env) * (args.student_iters + 1)

@@ -11,6 +11,10 @@ checkpoints are written atomically and can be resumed.
     python recipes/oracle_ppo.py checkpoint.init=checkpoints/oracle_h1.pt   # warm start from a policy
     python recipes/oracle_ppo.py device=cuda collector.workers=4  # a GPU for the networks, 4 collecting processes
     python recipes/oracle_ppo.py collector.workers=8 collector.backend=ray collector.ray.address=auto  # a Ray cluster
+    python recipes/oracle_ppo.py kl_measure=loss_forward      # rsl_rl's KL order: ~20% less update time, other learning
+
+The PPO update's cost and its switches (``kl_measure``, ``fused_adam``): BENCHMARKS.md, "The
+oracle's update".
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from __future__ import annotations
 import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when torch loads)
 
 # isort: split
+import math
 from pathlib import Path
 
 import hydra
@@ -30,12 +35,16 @@ from legoh_rl.modules.oracle import oracle_network_class
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
     make_ppo_loss,
+    minibatch_keys,
     policy_kl,
+    rollout_kl,
     set_loss_coefficients,
 )
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
+    load_optimizer,
+    make_adam,
     make_env,
     make_oracle,
     policy_meta,
@@ -50,16 +59,26 @@ from legoh_rl.training.checkpoint import (
     resume_path,
     set_rng_state,
 )
-from legoh_rl.training.config_checks import Integer, ListOf, Name, Number
+from legoh_rl.training.config_checks import Choice, Integer, ListOf, Name, Number, OneOf
 from legoh_rl.training.config_store import env_config, ppo_config, register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
 from legoh_rl.training.runner import Trainer
-from legoh_rl.training.schedules import check_anneal, feedforward_gain
+from legoh_rl.training.schedules import (
+    INHERIT,
+    RECORD_KEY,
+    FeedforwardSchedule,
+    check_anneal,
+    inherited_schedule,
+    recorded_schedule,
+)
 from legoh_rl.training.stages import run_experiment
 from legoh_rl.training.stats import explained_variance
 
 register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
+
+#: ``kl_measure``'s choices: which KL to the rollout policy moves the learning rate (:func:`ppo_update`)
+KL_MEASURES = ("after_step", "loss_forward")
 
 #: this recipe's own settings by kind (beside builders' TRAINING_SETTINGS and the env and ppo
 #: sections' dataclass fields);
@@ -69,19 +88,23 @@ SETTINGS = {
     "model.max_std": Number(0, low_open=True, nullable=True),
     "model.network": Name(),  # a name in ORACLE_NETWORKS: oracle_network_class
     "checkpoint.init": Name(nullable=True),
-    "feedforward_anneal": ListOf(Integer(0), nullable=True),  # [start, end]: check_anneal
+    # [start, end] (check_anneal), or inherit: feedforward_schedule
+    "feedforward_anneal": OneOf((ListOf(Integer(0)), Choice((INHERIT,))), "[start_frames, end_frames] or inherit",
+                                nullable=True),
     "update_threads": Integer(1, nullable=True),
+    "kl_measure": Choice(KL_MEASURES),
 }
 
 
-def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu"):
+def make_ppo(actor, critic, cfg: DictConfig, device: torch.device | str = "cpu", fused: bool = False):
     """Loss, GAE, optimiser and KL scheduler of the ``ppo`` section ``cfg`` (every
     :class:`~legoh_rl.objectives.ppo.PPOConfig` field); the loss's buffers (and GAE's) on
-    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their parameters)."""
+    ``device``, where ``actor`` and ``critic`` must already be (the optimiser holds their
+    parameters); ``fused``: fused Adam (the ``fused_adam`` setting, :func:`make_adam`)."""
     ppo_cfg = ppo_config(cfg)
     loss, gae = make_ppo_loss(actor, critic, ppo_cfg)
     loss.to(device)
-    optim = torch.optim.Adam(loss.parameters(), lr=ppo_cfg.learning_rate)
+    optim = make_adam(loss.parameters(), ppo_cfg.learning_rate, fused)
     sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
     return loss, gae, optim, sched
 
@@ -107,15 +130,49 @@ def validate(cfg: DictConfig) -> None:
     check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.checkpoint.get("init") is not None and not Path(cfg.checkpoint.init).is_file():
         raise FileNotFoundError(f"checkpoint.init: no policy at {cfg.checkpoint.init}")
-    if check_anneal(cfg.get("feedforward_anneal")) is not None and not cfg.env.get("gait_feedforward"):
+    if cfg.get("feedforward_anneal") == INHERIT:
+        schedule, _ = feedforward_schedule(cfg)  # refuses a checkpoint that records none, naming it
+        if schedule.gain and not cfg.env.get("gait_period"):
+            raise ValueError(f"feedforward_anneal=inherit: the inherited gain {schedule.gain} needs a gait clock, "
+                             f"set env.gait_period > 0 (got {cfg.env.get('gait_period')!r})")
+    elif check_anneal(cfg.get("feedforward_anneal")) is not None and not cfg.env.get("gait_feedforward"):
         raise ValueError("feedforward_anneal needs env.gait_feedforward > 0 (the gain it anneals from), "
                          f"got env.gait_feedforward={cfg.env.get('gait_feedforward')!r}")
 
 
-def set_feedforward(env, cfg: DictConfig, frames: int) -> None:
-    """The env's gait feedforward gain at ``frames`` run frames (``feedforward_anneal``; no-op without)."""
-    if cfg.get("feedforward_anneal") is not None:
-        env.set_gait_feedforward(feedforward_gain(cfg.env.gait_feedforward, frames, cfg.feedforward_anneal))
+def feedforward_schedule(cfg: DictConfig) -> tuple[FeedforwardSchedule | None, str]:
+    """``(schedule, where it comes from)``: the gait feedforward gain this run follows over its own
+    frames, ``None`` without ``feedforward_anneal`` (the env's gain stays).
+
+    ``[start, end]``: ``env.gait_feedforward`` annealed over that window. ``inherit``: a resumed run
+    goes on with the schedule its own checkpoint recorded; a fresh one with ``checkpoint.init``'s,
+    moved on by the init's frame count (the gain it had at its last frame, the same slope), so that
+    a stage started from another run's checkpoint continues its anneal with no copied numbers.
+
+    Raises:
+        ValueError: ``inherit`` without ``checkpoint.init`` on a fresh run, or from a checkpoint
+            that records no schedule (the message names the file).
+    """
+    anneal = cfg.get("feedforward_anneal")
+    if anneal is None:
+        return None, "none"
+    if anneal != INHERIT:
+        return FeedforwardSchedule(float(cfg.env.gait_feedforward), check_anneal(anneal)), "env.gait_feedforward"
+    resume = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
+    if resume is not None:
+        return recorded_schedule(load_checkpoint(resume), resume), f"the run's own {resume}"
+    init = cfg.checkpoint.get("init")
+    if init is None:
+        raise ValueError("feedforward_anneal=inherit goes on with checkpoint.init's gait feedforward schedule: "
+                         "set checkpoint.init (got null)")
+    state = load_checkpoint(init)
+    return inherited_schedule(state, init), f"checkpoint.init {init} at its {state['frames']} frames"
+
+
+def set_feedforward(env, schedule: FeedforwardSchedule | None, frames: int) -> None:
+    """The env's gait feedforward gain at ``frames`` run frames of ``schedule`` (None: no-op)."""
+    if schedule is not None:
+        env.set_gait_feedforward(schedule.at(frames))
 
 
 def check_network(state: dict, networks, path: str, what: str) -> None:
@@ -144,29 +201,58 @@ def init_networks(networks, env, path: str) -> None:
 
 
 def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
-    """Epochs x mini-batches of clipped PPO on one collected batch; returns mean diagnostics."""
+    """Epochs x mini-batches of clipped PPO on one collected ``[N, T]`` batch; returns mean diagnostics.
+
+    GAE writes ``advantage``, ``value_target`` and ``state_value`` into ``data``; the minibatches
+    are then indexed out of the entries the loss and the KL read only (:func:`minibatch_keys`):
+    the same tensors as indexing the whole batch, without gathering the next observations, reward
+    terms and counters 20 times an update (~9% of its time on 256 x 24 steps, BENCHMARKS.md).
+
+    The KL to the rollout policy that moves the learning rate (:class:`AdaptiveKLScheduler`) is
+    ``kl_measure``'s:
+
+    * ``after_step`` (default): the stepped actor's on the minibatch it stepped on
+      (:func:`policy_kl`: one more, gradient-free, actor pass a minibatch); it sets the next
+      step's learning rate;
+    * ``loss_forward``: rsl_rl's order: the loss's own forward pass (``policy_loc`` /
+      ``policy_scale``, :func:`rollout_kl`: the parameters before this minibatch's step) sets
+      this step's learning rate; no actor pass is added (~20% of the update). The batch's first
+      minibatch leaves the rate as it is: no step has been taken on the batch yet, so its KL is
+      the rollout policy's to itself (~0, which would raise the rate every update).
+
+    ``train/kl`` is the mean of the KLs that moved the learning rate.
+    """
+    kl_measure = cfg.get("kl_measure") or "after_step"
+    if kl_measure not in KL_MEASURES:
+        raise ValueError(f"kl_measure must be one of {list(KL_MEASURES)}, got {kl_measure!r}")
     with torch.no_grad():
         gae(data)
-    flat = data.reshape(-1)
+    flat = data.select(*minibatch_keys(loss, "loc", "scale"), strict=False).reshape(-1)
     sums: dict[str, float] = {}
-    count = 0
+    count = kl_count = 0
+    kl_sum, lr = 0.0, sched.lr
     for _ in range(cfg.ppo.num_epochs):
         for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
             mb = flat[idx]
             out = loss(mb)
+            if kl_measure == "loss_forward" and count > 0:  # the parameters after the previous step
+                kl = rollout_kl(mb, out["policy_loc"], out["policy_scale"])
+                lr, kl_sum, kl_count = sched.step(kl), kl_sum + float(kl), kl_count + 1
             total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
             optim.zero_grad()
             total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.ppo.max_grad_norm)
             optim.step()
-            kl = policy_kl(actor, mb)
-            lr = sched.step(kl)
+            if kl_measure == "after_step":
+                kl = policy_kl(actor, mb)
+                lr, kl_sum, kl_count = sched.step(kl), kl_sum + float(kl), kl_count + 1
             for key, value in (("loss/objective", out["loss_objective"]), ("loss/critic", out["loss_critic"]),
-                               ("loss/entropy", out["loss_entropy"]), ("train/kl", kl), ("train/grad_norm", grad_norm),
+                               ("loss/entropy", out["loss_entropy"]), ("train/grad_norm", grad_norm),
                                ("train/clip_fraction", out.get("clip_fraction", torch.tensor(0.0)))):
                 sums[key] = sums.get(key, 0.0) + float(value.detach() if torch.is_tensor(value) else value)
             count += 1
     stats = {k: v / count for k, v in sums.items()}
+    stats["train/kl"] = kl_sum / kl_count if kl_count else math.nan  # loss_forward on one minibatch: none
     stats["train/lr"] = lr
     stats["train/explained_variance"] = explained_variance(data["state_value"], data["value_target"])
     stats["train/action_std"] = float(flat["scale"].mean())
@@ -184,6 +270,7 @@ class OracleTrainer(Trainer):
         self.cfg, self.env, self.collect_env, self.behaviour, self.device = cfg, env, env, actor, env.device
         self.networks, self.actor, self.loss, self.gae, self.optim, self.sched = networks, actor, loss, gae, optim, sched
         self.update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
+        self.feedforward: FeedforwardSchedule | None = None  # None: the env's gain stays (build sets it)
 
     @property
     def meta(self) -> dict:
@@ -191,7 +278,7 @@ class OracleTrainer(Trainer):
         return policy_meta(self.env, "oracle")
 
     def before_collect(self) -> None:
-        set_feedforward(self.env, self.cfg, self.frames)
+        set_feedforward(self.env, self.feedforward, self.frames)
 
     def sync_workers(self, workers, first: bool) -> None:
         """The feedforward gain of the next batch, in every worker's env."""
@@ -206,7 +293,9 @@ class OracleTrainer(Trainer):
     def state_dict(self) -> dict:
         return {"loss": self.loss.state_dict(), "actor": self.actor.state_dict(),
                 "networks": self.networks.state_dict(), "oracle_config": self.networks.cfg.__dict__,
-                "optim": self.optim.state_dict(), "sched": self.sched.state_dict()}
+                "optim": self.optim.state_dict(), "sched": self.sched.state_dict(),
+                # what a resume or a later stage with feedforward_anneal=inherit goes on with
+                RECORD_KEY: (self.feedforward or FeedforwardSchedule(self.env.cfg.gait_feedforward)).record()}
 
     def postfix(self, stats: dict) -> dict[str, str]:
         return {"reward": f"{stats['reward/total']:.3f}", "level": f"{stats['curriculum/mean_level']:.2f}",
@@ -227,17 +316,20 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     networks, actor, critic = make_oracle(env, cfg.model.init_std, layers, None if max_std is None else float(max_std),
                                           network=str(cfg.model.network))
     networks.to(device)  # actor and critic are views of these modules
-    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device)
+    loss, gae, optim, sched = make_ppo(actor, critic, cfg.ppo, device, fused=bool(cfg.get("fused_adam")))
     trainer = OracleTrainer(cfg, env, networks, actor, loss, gae, optim, sched)
+    trainer.feedforward, source = feedforward_schedule(cfg)
+    if trainer.feedforward is not None:
+        print(f"gait feedforward: {trainer.feedforward.describe()} (from {source})")
     path = resume_path(cfg.checkpoint.resume, cfg.checkpoint.dir)
     if path is None:
-        set_feedforward(env, cfg, 0)
+        set_feedforward(env, trainer.feedforward, 0)
         if cfg.checkpoint.get("init") is not None:
             init_networks(networks, env, cfg.checkpoint.init)
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
-        set_feedforward(env, cfg, state["frames"])
+        set_feedforward(env, trainer.feedforward, state["frames"])
         expected = policy_meta(env, "oracle")
         if cfg.get("feedforward_anneal") is not None:  # saved one batch before the gain resumes at
             expected.pop("gait_feedforward", None)
@@ -248,7 +340,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
                      f"set model.layers={list(have) if have else '<its sizes>'} to resume it (this run has "
                      f"model.layers={list(networks.cfg.actor_layers)})")
         set_loss_coefficients(loss, ppo_config(cfg.ppo))  # the config's weights, not the checkpoint's
-        optim.load_state_dict(state["optim"])
+        load_optimizer(optim, state["optim"])  # its moments, this run's fused_adam
         sched.load_state_dict(state["sched"])
         levels = env.curriculum.levels.copy()
         env.load_state_dict(state["env"])

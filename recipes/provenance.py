@@ -9,7 +9,9 @@ For a checkpoint (a run's ``last.pt`` or a slim export) it prints:
 * the experiment and stage that trained it (the meta block), the chain of experiment files it
   extends (``defaults:``) and the command that trains it (``recipes/<recipe>.py experiment=...``);
 * whether that experiment, composed today, still gives the settings the checkpoint recorded
-  (the keys that differ, if any);
+  (the keys that differ, if any); where today's says ``feedforward_anneal: inherit``, the gait
+  feedforward schedule the checkpoint followed against the one inherit reads from its
+  ``checkpoint.init`` (:func:`schedule_differences`);
 * where it started from: its teacher (a student's), ``checkpoint.init`` (an oracle's), the run it
   branched from (``checkpoint.branch``), each followed in turn while the file is at hand;
 * with ``--config``, the resolved config it trained with, as YAML, in today's layout of the
@@ -20,6 +22,7 @@ For a checkpoint (a run's ``last.pt`` or a slim export) it prints:
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -28,6 +31,7 @@ from omegaconf import OmegaConf
 
 from legoh_rl.training.checkpoint import file_digest, load_checkpoint
 from legoh_rl.training.config_store import register_configs, upgrade_recorded_config
+from legoh_rl.training.schedules import INHERIT, inherited_schedule, recorded_schedule
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG_DIR = ROOT / "recipes" / "config"
@@ -67,6 +71,38 @@ def differences(recorded, today, prefix: str = "") -> tuple[list[str], list[str]
         elif a != b:
             changed.append(f"{prefix}{key}: recorded {a!r}, today {b!r}")
     return changed, added
+
+
+def without_schedule(config: dict) -> dict:
+    """``config`` without the two settings ``feedforward_anneal: inherit`` replaces by the schedule
+    it reads (``env.gait_feedforward`` and ``feedforward_anneal``)."""
+    out = {k: v for k, v in config.items() if k != "feedforward_anneal"}
+    if isinstance(out.get("env"), dict):
+        out["env"] = {k: v for k, v in out["env"].items() if k != "gait_feedforward"}
+    return out
+
+
+def schedule_differences(state: dict, path: Path, config: dict) -> list[str]:
+    """For an experiment that today says ``feedforward_anneal: inherit``: ``[]`` when checkpoint
+    ``state`` (at ``path``, recorded ``config``) followed the gait feedforward schedule inherit
+    gives from its ``checkpoint.init``, else one line saying what differs or why it cannot be told."""
+    try:
+        have = recorded_schedule(state, path)
+    except ValueError as err:
+        return [f"feedforward_anneal: today inherit; {err}"]
+    init = (config.get("checkpoint") or {}).get("init")
+    if not init:
+        return [f"feedforward_anneal: recorded {have.describe()}, today inherit (no checkpoint.init recorded)"]
+    source = Path(init) if Path(init).is_absolute() else ROOT / init
+    if not source.is_file():
+        return [f"feedforward_anneal: recorded {have.describe()}, today inherit from {init} (not on this machine)"]
+    try:
+        want = inherited_schedule(load_checkpoint(source), init)
+    except ValueError as err:
+        return [f"feedforward_anneal: recorded {have.describe()}, today inherit; {err}"]
+    if want.anneal == have.anneal and math.isclose(want.gain, have.gain, rel_tol=1e-12, abs_tol=1e-15):
+        return []
+    return [f"feedforward_anneal: recorded {have.describe()}, today inherit from {init}: {want.describe()}"]
 
 
 def composed(recipe: str, experiment: str, stage: str | None) -> dict:
@@ -109,7 +145,13 @@ def describe(path: Path, depth: int = 0, seen: set | None = None) -> list[str]:
         lines.append(f"{pad}  experiment {experiment}" + (f", stage {stage}" if stage else "") + f": {where}")
         lines.append(f"{pad}  trained by: python recipes/{recipe}.py experiment={experiment} checkpoint.resume=auto")
         if chain and config:
-            diff, added = differences(config, composed(recipe, experiment, stage))
+            today = composed(recipe, experiment, stage)
+            recorded, schedule = config, []
+            if today.get("feedforward_anneal") == INHERIT:  # compared as the schedule it reads instead
+                schedule = schedule_differences(state, path, config)
+                recorded, today = without_schedule(config), without_schedule(today)
+            diff, added = differences(recorded, today)
+            diff += schedule
             lines.append(f"{pad}  the experiment today gives the recorded settings" if not diff else
                          f"{pad}  the experiment today differs from the recorded settings in {len(diff)} key(s):")
             lines += [f"{pad}    {d}" for d in diff]

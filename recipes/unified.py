@@ -44,6 +44,8 @@ from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
     gait_kwargs,
+    load_optimizer,
+    make_adam,
     make_env,
     policy_meta,
     require_count,
@@ -84,7 +86,7 @@ register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfi
 SETTINGS = {
     "teacher": Name(),
     # the registry is the one list of networks, read when checked: a network registered by a
-    # caller (PERCEPTION_BUILDERS[name] = builder) is a valid student.perception too
+    # caller (PERCEPTION_BUILDERS.register(name, builder)) is a valid student.perception too
     "student.perception": Choice(lambda: sorted(PERCEPTION_BUILDERS)),
     "student.preset": Choice(tuple(PERCEPTION_PRESETS)),
     "student.init_std": Number(0, low_open=True, nullable=True),
@@ -94,7 +96,6 @@ SETTINGS = {
     "dagger_beta0": Number(0, 1),
     "dagger_decay_iters": Integer(1, nullable=True),
     "dagger_epochs": Integer(1),
-    "fused_adam": Flag(),
     "dagger_replay.capacity": Integer(0, text=">= 0 (0: off)"),
     "dagger_replay.batch_size": Integer(1),
     "dagger_replay.steps": Integer(1),
@@ -317,9 +318,8 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     ppo, gae, dagger, vae, hlm = make_losses(student, critic, base.A, cfg, device)
     params = [q for q in (*student.perception.parameters(), *student.actor.parameters(), *critic.parameters())
               if q.requires_grad]  # not a frozen oracle locomotion
-    # fused: one kernel over every tensor (~6x faster a step on a CPU; float rounding may differ)
     ppo_cfg = ppo_config(cfg.ppo, PPO_OWN)
-    optim = torch.optim.Adam(params, lr=ppo_cfg.learning_rate, **({"fused": True} if cfg.get("fused_adam") else {}))
+    optim = make_adam(params, ppo_cfg.learning_rate, bool(cfg.get("fused_adam")))  # fused: one kernel a step
     sched = AdaptiveKLScheduler(optim, ppo_cfg.desired_kl, min_lr=ppo_cfg.min_lr, max_lr=ppo_cfg.max_lr)
     vae_optim = torch.optim.Adam(vae.parameters(), lr=cfg.hlm.vae_lr)
     meta = {**policy_meta(base, "student"), "perception": cfg.student.perception, "preset": cfg.student.preset}
@@ -385,8 +385,9 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
     load_weights(p.student.actor, state["actor"], path, "locomotion weights", hint)
     load_weights(p.critic_nets, state["critic"], path, "critic weights", hint)
     load_weights(p.vae, state["vae"], path, "masked-VAE weights", hint)
-    for key in ("optim", "sched", "vae_optim"):
-        getattr(p, key).load_state_dict(state[key])
+    for key in ("optim", "vae_optim"):  # their moments, this run's fused_adam
+        load_optimizer(getattr(p, key), state[key])
+    p.sched.load_state_dict(state["sched"])
     p.env.load_state_dict(state["env"], streams=exact)
     if p.replay is not None and state.get("replay") is not None:
         p.replay.load_state_dict(state["replay"], stream=exact)

@@ -222,6 +222,7 @@ TRAINING = {
     "checkpoint.keep_curriculum": bad_flag(),
     "checkpoint.overwrite": bad_flag(),
     "torch_threads": bad_int(1),
+    "fused_adam": bad_flag(),
 }
 KINDS = {
     "oracle_ppo": {
@@ -232,8 +233,9 @@ KINDS = {
         "model.network": bad_choice(tuple(ORACLE_NETWORKS)),
         "model.layers": bad_list(st.integers(1, 64), bad_int(1), null=True),
         "checkpoint.init": bad_name(null=True),
-        "feedforward_anneal": bad_list(st.integers(0, 10), bad_int(0), null=True),
+        "feedforward_anneal": bad_list(st.integers(0, 10), bad_int(0), null=True, single_ok=("inherit",)),
         "update_threads": bad_int(1, null=True),
+        "kl_measure": bad_choice(("after_step", "loss_forward")),
     },
     "unified": {
         **TRAINING,
@@ -251,7 +253,6 @@ KINDS = {
         "encoder_grad_fraction": bad_num(0, 1, low_open=True),
         "dagger_minibatches": bad_int(1, null=True),
         "minibatch_split": bad_choice(("permute", "strided")),
-        "fused_adam": bad_flag(),
         "dagger_replay.capacity": bad_int(0),
         "dagger_replay.batch_size": bad_int(1),
         "dagger_replay.steps": bad_int(1),

@@ -116,8 +116,10 @@ def cycles(graph: dict[str, set[str]]) -> list[frozenset[str]]:
 
 
 #: modules at the package's root that every layer may import: they import nothing of legoh_rl
-#: (``kinds``: the settings' kinds the config dataclasses of envs/ and objectives/ declare)
-FOUNDATION = ("legoh_rl.kinds", "legoh_rl.openmp")
+#: (``kinds``: the settings' kinds the config dataclasses of envs/ and objectives/ declare;
+#: ``registry``: the name -> entry tables of envs/ (terrain primitives, reward terms) and
+#: modules/ (oracle, locomotion and perception networks))
+FOUNDATION = ("legoh_rl.kinds", "legoh_rl.openmp", "legoh_rl.registry")
 
 
 def layer(module: str) -> str:

@@ -11,6 +11,8 @@ from torchrl.modules import (
     ProbabilisticActor,
     ValueOperator,
 )
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.utils import ValueEstimators
 
 from legoh_rl.objectives import (
     AdaptiveKLScheduler,
@@ -19,6 +21,7 @@ from legoh_rl.objectives import (
     make_ppo_loss,
     policy_kl,
 )
+from legoh_rl.objectives.ppo import minibatch_keys, rollout_kl
 
 OBS, ACT = 3, 2
 
@@ -131,7 +134,7 @@ def test_policy_kl_reads_old_params_from_batch():
     with torch.no_grad():
         new = actor(td.select("obs"))
     expected = gaussian_kl(td["loc"], td["scale"], new["loc"], new["scale"]).mean()
-    torch.testing.assert_close(kl, expected)
+    assert torch.equal(kl, expected)  # the parameter network alone gives the full actor's values
     assert kl > 0
     assert (td == snapshot).all()  # the batch keeps the rollout loc/scale
     # padding mask: masked samples do not count
@@ -140,6 +143,66 @@ def test_policy_kl_reads_old_params_from_batch():
     td[("collector", "mask")] = mask
     expected = gaussian_kl(td["loc"], td["scale"], new["loc"], new["scale"])[:, :3].mean()
     torch.testing.assert_close(policy_kl(actor, td), expected)
+
+
+def test_minibatch_keys_give_the_loss_what_the_whole_batch_gives():
+    actor, critic = make_actor_critic()
+    loss, gae = make_ppo_loss(actor, critic)
+    keys = minibatch_keys(loss, "loc", "scale")
+    assert keys == ["obs", "action", "action_log_prob", "advantage", "value_target", "state_value",
+                    ("collector", "mask"), "shifted_valid", "loc", "scale"]
+    td = rollout(actor)
+    mask = torch.ones(4, 8, 1, dtype=torch.bool)
+    mask[:, 6:] = False  # padded steps: the selection must keep the mask the loss honours
+    td[("collector", "mask")] = mask
+    td["unread"] = torch.full((4, 8, 1), float("nan"))
+    with torch.no_grad():
+        gae(td)
+    flat = td.reshape(-1)
+    small = td.select(*keys, strict=False).reshape(-1)
+    assert "unread" not in small.keys() and ("next", "obs") not in small.keys(True)
+    idx = torch.randperm(32, generator=torch.Generator().manual_seed(0))[:16]
+    whole, part = loss(flat[idx]), loss(small[idx])
+    for k in ("loss_objective", "loss_critic", "loss_entropy"):
+        assert torch.equal(whole[k], part[k]), k
+    whole_grads = torch.autograd.grad(whole["loss_objective"] + whole["loss_critic"], list(loss.parameters()))
+    part_grads = torch.autograd.grad(part["loss_objective"] + part["loss_critic"], list(loss.parameters()))
+    assert all(torch.equal(a, b) for a, b in zip(whole_grads, part_grads, strict=True))
+
+
+def test_the_loss_output_holds_the_current_policy_and_otherwise_is_torchrls():
+    actor, critic = make_actor_critic()
+    loss, gae = make_ppo_loss(actor, critic)
+    plain = ClipPPOLoss(actor, critic, clip_epsilon=0.2, entropy_coeff=0.01, critic_coeff=1.0, loss_critic_type="l2",
+                        normalize_advantage=True, clip_value=True)
+    plain.make_value_estimator(ValueEstimators.GAE, gamma=0.99, lmbda=0.95)
+    assert loss.state_dict().keys() == plain.state_dict().keys()
+    td = rollout(actor)
+    with torch.no_grad():
+        gae(td)
+        actor.module[0].module[0].bias.add_(0.3)  # the current policy is not the rollout one
+    out, ref = loss(td), plain(td)
+    for k in ("loss_objective", "loss_critic", "loss_entropy", "clip_fraction", "kl_approx"):
+        assert torch.equal(out[k], ref[k]), k
+    grads = torch.autograd.grad(out["loss_objective"] + out["loss_critic"], list(actor.parameters()))
+    ref_grads = torch.autograd.grad(ref["loss_objective"] + ref["loss_critic"], list(actor.parameters()))
+    assert all(torch.equal(a, b) for a, b in zip(grads, ref_grads, strict=True))
+    with torch.no_grad():
+        now = actor(td.select("obs"))
+    assert not out["policy_loc"].requires_grad
+    assert torch.equal(out["policy_loc"], now["loc"]) and torch.equal(out["policy_scale"], now["scale"])
+    # the KL from the loss output is policy_kl's, without its actor pass
+    kl = rollout_kl(td, out["policy_loc"], out["policy_scale"])
+    assert kl > 0 and torch.equal(kl, policy_kl(actor, td))
+    mask = torch.zeros(4, 8, 1, dtype=torch.bool)
+    mask[:, :3] = True
+    td[("collector", "mask")] = mask
+    assert torch.equal(rollout_kl(td, now["loc"], now["scale"]), policy_kl(actor, td))
+    td[("collector", "mask")] = torch.ones(4, 8, 2, dtype=torch.bool)
+    with pytest.raises(ValueError, match=r"mask \('collector', 'mask'\) of shape \(4, 8, 2\) does not match"):
+        rollout_kl(td, now["loc"], now["scale"])
+    with pytest.raises(KeyError, match=r"'loc' and 'scale'"):
+        rollout_kl(td.exclude("loc"), now["loc"], now["scale"])
 
 
 def test_adaptive_kl_scheduler():

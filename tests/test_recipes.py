@@ -7,6 +7,7 @@ configs and helpers; the recipes with many tests of their own have their own fil
 import json
 import math
 import re
+import shutil
 import sys
 from pathlib import Path
 
@@ -18,6 +19,7 @@ from hydra import compose, initialize_config_dir
 from legoh_rl.training.checkpoint import load_checkpoint, save_checkpoint
 from legoh_rl.training.config_store import env_config
 from legoh_rl.training.evaluation import aggregate, markdown_table
+from legoh_rl.training.schedules import FeedforwardSchedule
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 ROOT = RECIPES.parent
@@ -635,8 +637,12 @@ def test_experiment_oracle_h1_footholds_is_stage_2_of_trails(tmp_path):
     oracle_ppo.validate(cfg)
     env = env_config(cfg.env, mode="oracle")
     assert env.category_weights == (1.0, 1.5, 1.0, 1.5, 0.6) and env.feet_edge_from_level == 1
-    # the feedforward gain keeps stage 1's slope: 1 / 40M frames from 0.922
-    assert list(cfg.feedforward_anneal) == [0, 36_900_000] and cfg.env.gait_feedforward == 0.922
+    # the feedforward gain goes on along stage 1's line (1 -> 0 over its frames 10M-50M) from where it ended
+    assert cfg.feedforward_anneal == "inherit"
+    schedule, source = oracle_ppo.feedforward_schedule(cfg)
+    assert schedule == FeedforwardSchedule(0.9222176, (0, 36_888_704)), schedule
+    assert source == "checkpoint.init runs/oracle_h1_trails/last.pt at its 13111296 frames"
+    assert schedule.gain == load_checkpoint(cfg.checkpoint.init)["meta"]["gait_feedforward"]
 
 
 def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(tmp_path):
@@ -647,11 +653,86 @@ def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(
     oracle_ppo.validate(cfg)
     env = env_config(cfg.env, mode="oracle")
     assert env.pit_depths == (0.1, 0.3, 0.6, 1.0, 1.0) and env.category_weights == (1.0, 1.5, 1.0, 1.5, 0.6)
-    # the init checkpoint's gain, annealed on stage 2's slope (0.922 over 36.9M frames)
+    # the init checkpoint's gain, annealed on stage 2's slope (0.922 over 36.9M frames, as its run recorded)
     start = load_checkpoint(cfg.checkpoint.init)
-    assert math.isclose(cfg.env.gait_feedforward, start["meta"]["gait_feedforward"])
-    assert list(cfg.feedforward_anneal) == [0, 36_900_000 - start["frames"]]
-    assert math.isclose(cfg.env.gait_feedforward / cfg.feedforward_anneal[1], 0.922 / 36_900_000)
+    assert cfg.feedforward_anneal == "inherit"
+    schedule, _ = oracle_ppo.feedforward_schedule(cfg)
+    assert schedule.gain == start["meta"]["gait_feedforward"] == 0.5082723642276423
+    assert schedule.anneal == (0, 36_900_000 - start["frames"]) == (0, 20_341_920)
+    assert math.isclose(schedule.gain / schedule.anneal[1], 0.922 / 36_900_000)
+
+
+@pytest.mark.parametrize("run", ["oracle_h1_footholds", "oracle_h1_pit_rungs"])
+def test_a_resumed_inheriting_stage_keeps_the_schedule_its_own_state_recorded(tmp_path, run):
+    """The committed run states were started with the gains copied by hand: resumed under
+    ``feedforward_anneal: inherit`` they go on with the schedule their own config recorded, so the
+    gain their resume collects with is the one their meta block holds."""
+    shutil.copy(ROOT / "runs" / run / "last.pt", tmp_path / "last.pt")
+    cfg = cfg_of("oracle_ppo", [f"experiment={run}", f"checkpoint.dir={tmp_path}", "checkpoint.resume=auto"])
+    oracle_ppo.validate(cfg)
+    schedule, source = oracle_ppo.feedforward_schedule(cfg)
+    state = load_checkpoint(tmp_path / "last.pt")
+    recorded = state["config"]
+    assert schedule == FeedforwardSchedule(recorded["env"]["gait_feedforward"], tuple(recorded["feedforward_anneal"]))
+    assert schedule.at(state["frames"]) == state["meta"]["gait_feedforward"]
+    assert source == f"the run's own {tmp_path / 'last.pt'}"
+
+
+def _with_state(path, **state):
+    """A hand-made checkpoint at ``path`` (a meta block and what the schedule readers look at)."""
+    save_checkpoint(path, {"meta": {"kind": "oracle"}, **state})
+    return path
+
+
+def test_inherit_reads_the_record_of_its_init_or_its_resume(tmp_path):
+    init = _with_state(tmp_path / "init.pt", frames=600, feedforward_schedule={"gain": 0.8, "anneal": [200, 1000]})
+    base = TINY + GAIT + ["feedforward_anneal=inherit", f"checkpoint.init={init}"]
+    fresh = cfg_of("oracle_ppo", base + [f"checkpoint.dir={tmp_path / 'fresh'}"])
+    oracle_ppo.validate(fresh)
+    assert oracle_ppo.feedforward_schedule(fresh)[0] == FeedforwardSchedule(0.4, (0, 400))  # 0.8 x 400 / 800
+    (tmp_path / "run").mkdir()
+    _with_state(tmp_path / "run" / "last.pt", frames=100, feedforward_schedule={"gain": 0.3, "anneal": [0, 50_000]})
+    resumed = cfg_of("oracle_ppo", base + [f"checkpoint.dir={tmp_path / 'run'}", "checkpoint.resume=auto"])
+    assert oracle_ppo.feedforward_schedule(resumed)[0] == FeedforwardSchedule(0.3, (0, 50_000))  # its own
+
+
+def test_inherit_without_an_init_or_a_recorded_schedule_is_refused_naming_the_file(tmp_path):
+    base = TINY + GAIT + ["feedforward_anneal=inherit", f"checkpoint.dir={tmp_path / 'run'}"]
+    with pytest.raises(ValueError, match=r"feedforward_anneal=inherit goes on with checkpoint.init's gait feedforward "
+                                         r"schedule: set checkpoint.init \(got null\)"):
+        oracle_ppo.validate(cfg_of("oracle_ppo", base))
+    bare = _with_state(tmp_path / "bare.pt", frames=64)
+    with pytest.raises(ValueError, match=rf"{bare} records no gait feedforward schedule"):
+        oracle_ppo.validate(cfg_of("oracle_ppo", base + [f"checkpoint.init={bare}"]))
+    no_frames = _with_state(tmp_path / "no_frames.pt", feedforward_schedule={"gain": 1.0, "anneal": None})
+    with pytest.raises(ValueError, match=rf"{no_frames} records no frame count"):
+        oracle_ppo.validate(cfg_of("oracle_ppo", base + [f"checkpoint.init={no_frames}"]))
+    clockless = _with_state(tmp_path / "clock.pt", frames=0, feedforward_schedule={"gain": 1.0, "anneal": None})
+    with pytest.raises(ValueError, match=r"the inherited gain 1.0 needs a gait clock, set env.gait_period > 0"):
+        oracle_ppo.validate(cfg_of("oracle_ppo", TINY + ["feedforward_anneal=inherit", f"checkpoint.init={clockless}",
+                                                         f"checkpoint.dir={tmp_path / 'run'}"]))
+    with pytest.raises(ValueError, match=r"feedforward_anneal must be \[start_frames, end_frames\] or inherit, "
+                                         r"got 'inherits'"):
+        oracle_ppo.validate(cfg_of("oracle_ppo", base + ["feedforward_anneal=inherits"]))
+
+
+def test_a_stage_inherits_its_inits_anneal_and_records_it(tmp_path):
+    """Run A anneals 1 -> 0 over frames [32, 96] and stops at 64 (gain 0.5); run B, started from
+    A's last.pt with inherit, collects from 0.5 on A's slope and records the schedule it followed."""
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + GAIT + ["feedforward_anneal=[32,96]", "collector.total_frames=64",
+                                                         f"checkpoint.dir={tmp_path / 'a'}"]))
+    a = load_checkpoint(tmp_path / "a" / "last.pt")
+    assert a["feedforward_schedule"] == {"gain": 1.0, "anneal": [32, 96]} and a["meta"]["gait_feedforward"] == 0.5
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + GAIT + ["feedforward_anneal=inherit", "collector.total_frames=32",
+                                                         "env.gait_feedforward=0.1",  # not read under inherit
+                                                         f"checkpoint.init={tmp_path / 'a' / 'last.pt'}",
+                                                         f"checkpoint.dir={tmp_path / 'b'}"]))
+    b = load_checkpoint(tmp_path / "b" / "last.pt")
+    assert b["feedforward_schedule"] == {"gain": 0.5, "anneal": [0, 32]}
+    assert b["config"]["feedforward_anneal"] == "inherit" and "gait_feedforward" not in b["meta"]  # 0 at 32
+    import plot_curves
+
+    assert [r["train/gait_feedforward"] for r in plot_curves.load(tmp_path / "b" / "metrics.jsonl")] == [0.5]
 
 
 def test_demo_help_prints_usage_and_runs_nothing(capsys):

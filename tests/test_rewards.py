@@ -188,7 +188,7 @@ def test_a_term_without_a_weight_or_with_an_unknown_robot_is_refused(decorate, m
 
 
 def test_a_term_is_registered_once_and_by_its_name():
-    with pytest.raises(ValueError, match=r"'tracking_yaw' is registered twice"):
+    with pytest.raises(ValueError, match=r"reward term 'tracking_yaw' is already registered \(RewardTerm\(name='tracking_yaw'"):
         term(weight=1.0)(rewards.reward_tracking_yaw)
     with pytest.raises(ValueError, match=r"function '_reward_probe' must be named reward_<name>"):
         term(weight=1.0)(_reward_probe)

@@ -86,7 +86,7 @@ def test_cli_preview_export_and_errors(tmp_path, capsys):
     assert main(["preview", "--category", "gap", "--level", "9", "-o", str(png)]) == 2
     assert "valid levels: 0, 1, 2, 3, 4" in capsys.readouterr().err
     assert main(["primitive", "--name", "volcano", "--level", "1", "-o", str(png)]) == 2
-    assert "valid primitives" in capsys.readouterr().err
+    assert "unknown terrain primitive 'volcano'; registered: [" in capsys.readouterr().err
 
 
 def test_parameter_table_lists_every_parameter():

@@ -184,7 +184,7 @@ def test_narrow_passage_width():
 
 
 def test_unknown_primitive_and_bad_level_raise_listing_valid_values():
-    with pytest.raises(ValueError, match="valid primitives: flat, rough"):
+    with pytest.raises(ValueError, match=r"unknown terrain primitive 'lava'; registered: \[.*'flat'.*'rough'"):
         make_primitive("lava", 0, 0)
     with pytest.raises(ValueError, match="valid levels: 0, 1, 2, 3, 4"):
         make_primitive("gap", 5, 0)

@@ -74,6 +74,7 @@ import numpy as np
 from legoh_rl.envs.array_api import namespace_of
 from legoh_rl.envs.gait import stance_mask
 from legoh_rl.envs.robots import ROBOTS
+from legoh_rl.registry import Registry
 
 __all__ = [
     "RewardState",
@@ -175,7 +176,7 @@ class RewardTerm:
 
 
 #: every reward term by name, in the order its weighted values are summed
-REWARD_TERMS: dict[str, RewardTerm] = {}
+REWARD_TERMS: Registry[RewardTerm] = Registry("reward term", hint="@term(weight=...) in legoh_rl.envs.rewards adds one")
 
 
 def _check_weight(value, where: str) -> float:
@@ -200,7 +201,7 @@ def term(
     Raises:
         ValueError: no weight (or a weight that is not a finite number), a per-robot row for a robot
             not in :data:`legoh_rl.envs.robots.ROBOTS`, a function not named ``reward_<name>``, or a
-            name registered twice; each message names the term.
+            name registered already; each message names the term.
     """
     if callable(weight):  # bare ``@term``
         raise ValueError(f"reward term {weight.__name__.removeprefix('reward_')!r} has no weight: "
@@ -210,8 +211,6 @@ def term(
         if not fn.__name__.startswith("reward_"):
             raise ValueError(f"reward term function {fn.__name__!r} must be named reward_<name>")
         name = fn.__name__[len("reward_"):]
-        if name in REWARD_TERMS:
-            raise ValueError(f"reward term {name!r} is registered twice")
         if weight is None:
             raise ValueError(f"reward term {name!r} has no weight: write @term(weight=...) above it")
         rows = dict(per_robot or {})
@@ -219,14 +218,14 @@ def term(
         if unknown:
             raise ValueError(f"reward term {name!r}: per_robot names unknown robots {unknown}; "
                              f"known robots: {sorted(ROBOTS)}")
-        REWARD_TERMS[name] = RewardTerm(
+        REWARD_TERMS.register(name, RewardTerm(
             name=name,
             fn=fn,
             weight=_check_weight(weight, f"reward term {name!r}: weight"),
             per_robot={r: _check_weight(w, f"reward term {name!r}: per_robot[{r!r}]") for r, w in rows.items()},
             student_only=student_only,
             after_clip=after_clip,
-        )
+        ))
         return fn
 
     return register
@@ -439,8 +438,7 @@ def reward_weights(
             raise ValueError(f"unknown robot {robot!r} for the reward weights; known robots: {sorted(ROBOTS)}")
     weights = {name: t.weight_for(robot) for name, t in REWARD_TERMS.items()}
     for name, value in (overrides or {}).items():
-        if name not in REWARD_TERMS:
-            raise ValueError(f"unknown reward term {name!r}; known terms: {sorted(REWARD_TERMS)}")
+        REWARD_TERMS.lookup(name)
         weights[name] = float(value)
     if not student:
         for name in STUDENT_ONLY:

@@ -28,6 +28,7 @@ from legoh_rl.modules.distributions import GaussianHead, make_gaussian_actor
 from legoh_rl.modules.keys import LocomotionKeys
 from legoh_rl.modules.mlp import build_mlp
 from legoh_rl.modules.oracle import OracleActorNet
+from legoh_rl.registry import Registry
 
 __all__ = [
     "LOCOMOTION_NETWORKS",
@@ -67,7 +68,9 @@ class LocomotionNet(nn.Module):
 #: ``(z_uni (*B, cfg.latent_dim), proprio (*B, cfg.proprio_dim), delta_g0 (*B, cfg.goal_dim),
 #: goal_next (*B, cfg.goal_dim)) -> (loc, scale) (*B, cfg.num_actions)``, ``scale > 0`` (the
 #: actor's diagonal Gaussian; :class:`~legoh_rl.modules.distributions.GaussianHead` gives both).
-LOCOMOTION_NETWORKS: dict[str, type[nn.Module]] = {}
+LOCOMOTION_NETWORKS: Registry[type[nn.Module]] = Registry(
+    "locomotion network", base=nn.Module, base_text="an nn.Module subclass",
+    hint="register_locomotion_network in legoh_rl.modules.locomotion adds one")
 
 
 def register_locomotion_network(name: str, cls: type[nn.Module] | None = None):
@@ -79,19 +82,7 @@ def register_locomotion_network(name: str, cls: type[nn.Module] | None = None):
         ValueError: ``name`` is empty or not a string, names another class already, or ``cls``
             is not an ``nn.Module`` subclass.
     """
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"a locomotion network's name must be a non-empty string, got {name!r}")
-
-    def register(c: type[nn.Module]) -> type[nn.Module]:
-        if not (isinstance(c, type) and issubclass(c, nn.Module)):
-            raise ValueError(f"locomotion network {name!r} must be an nn.Module subclass, got {c!r}")
-        if LOCOMOTION_NETWORKS.get(name, c) is not c:
-            raise ValueError(f"locomotion network {name!r} is already registered "
-                             f"({LOCOMOTION_NETWORKS[name].__qualname__})")
-        LOCOMOTION_NETWORKS[name] = c
-        return c
-
-    return register if cls is None else register(cls)
+    return LOCOMOTION_NETWORKS.register(name, cls)
 
 
 register_locomotion_network("mlp", LocomotionNet)
@@ -103,10 +94,7 @@ def locomotion_network_class(name: str) -> type[nn.Module]:
     Raises:
         ValueError: an unregistered name (the message lists the registered ones).
     """
-    if name not in LOCOMOTION_NETWORKS:
-        raise ValueError(f"unknown locomotion network {name!r}; registered: {sorted(LOCOMOTION_NETWORKS)} "
-                         "(register_locomotion_network in legoh_rl.modules.locomotion adds one)")
-    return LOCOMOTION_NETWORKS[name]
+    return LOCOMOTION_NETWORKS.lookup(name)
 
 
 def make_locomotion_network(cfg: LocomotionConfig) -> nn.Module:

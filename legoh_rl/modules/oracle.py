@@ -31,6 +31,7 @@ from legoh_rl.modules.configs import OracleConfig
 from legoh_rl.modules.distributions import GaussianHead, make_gaussian_actor
 from legoh_rl.modules.keys import OracleKeys
 from legoh_rl.modules.mlp import build_mlp
+from legoh_rl.registry import Registry
 
 __all__ = [
     "ORACLE_NETWORKS",
@@ -135,7 +136,9 @@ class OracleNetworks(nn.Module):
 
 
 #: oracle network classes by name (``OracleConfig.network``, the recipe's ``model.network``)
-ORACLE_NETWORKS: dict[str, type[nn.Module]] = {}
+ORACLE_NETWORKS: Registry[type[nn.Module]] = Registry(
+    "oracle network", base=nn.Module, base_text="an nn.Module subclass",
+    hint="register_oracle_network in legoh_rl.modules.oracle adds one")
 
 #: what every oracle network has (the contract of :class:`OracleNetworks`):
 #: ``cfg`` its :class:`OracleConfig`;
@@ -159,18 +162,7 @@ def register_oracle_network(name: str, cls: type[nn.Module] | None = None):
         ValueError: ``name`` is empty or not a string, names another class already, or ``cls``
             is not an ``nn.Module`` subclass.
     """
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"an oracle network's name must be a non-empty string, got {name!r}")
-
-    def register(c: type[nn.Module]) -> type[nn.Module]:
-        if not (isinstance(c, type) and issubclass(c, nn.Module)):
-            raise ValueError(f"oracle network {name!r} must be an nn.Module subclass, got {c!r}")
-        if ORACLE_NETWORKS.get(name, c) is not c:
-            raise ValueError(f"oracle network {name!r} is already registered ({ORACLE_NETWORKS[name].__qualname__})")
-        ORACLE_NETWORKS[name] = c
-        return c
-
-    return register if cls is None else register(cls)
+    return ORACLE_NETWORKS.register(name, cls)
 
 
 register_oracle_network("mlp", OracleNetworks)
@@ -182,10 +174,7 @@ def oracle_network_class(name: str) -> type[nn.Module]:
     Raises:
         ValueError: an unregistered name (the message lists the registered ones).
     """
-    if name not in ORACLE_NETWORKS:
-        raise ValueError(f"unknown oracle network {name!r}; registered: {sorted(ORACLE_NETWORKS)} "
-                         "(register_oracle_network in legoh_rl.modules.oracle adds one)")
-    return ORACLE_NETWORKS[name]
+    return ORACLE_NETWORKS.lookup(name)
 
 
 def make_oracle_networks(cfg: OracleConfig) -> nn.Module:

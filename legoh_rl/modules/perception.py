@@ -28,6 +28,7 @@ from legoh_rl.modules.configs import PerceptionConfig
 from legoh_rl.modules.goal_adaptation import make_memory_perception
 from legoh_rl.modules.keys import PerceptionKeys
 from legoh_rl.modules.tcvit import TCViTEncoder
+from legoh_rl.registry import Registry
 
 __all__ = [
     "PERCEPTION_BUILDERS",
@@ -76,14 +77,12 @@ def make_tcvit_ct(
     return make_memory_perception(encoder, cfg.gamma_dim, cfg, keys, memory="ct")
 
 
-PERCEPTION_BUILDERS: dict[str, Callable[..., TensorDictSequential]] = {
-    "tcvit": make_tcvit,
-    "tcvit_ct": make_tcvit_ct,
-    "vanilla": make_vanilla,
-    "eph": make_eph,
-    "rmah": make_rmah,
-    "rmab": make_rmab,
-}
+#: perception builders by name (the unified recipe's ``student.perception``), each
+#: ``builder(cfg: PerceptionConfig, keys: PerceptionKeys | None) -> TensorDictSequential``
+PERCEPTION_BUILDERS: Registry[Callable[..., TensorDictSequential]] = Registry(
+    "perception network", hint="PERCEPTION_BUILDERS.register(name, builder) in legoh_rl.modules.perception adds one",
+    entries={"tcvit": make_tcvit, "tcvit_ct": make_tcvit_ct, "vanilla": make_vanilla, "eph": make_eph,
+             "rmah": make_rmah, "rmab": make_rmab})
 
 
 def make_perception(
@@ -92,10 +91,6 @@ def make_perception(
     """Build the perception network registered as ``name`` (see the module table).
 
     Raises:
-        ValueError: for an unknown ``name`` (the message lists the valid names).
+        ValueError: for an unknown ``name`` (the message lists the registered names).
     """
-    if name not in PERCEPTION_BUILDERS:
-        raise ValueError(
-            f"unknown perception network {name!r}; valid names: {sorted(PERCEPTION_BUILDERS)}"
-        )
-    return PERCEPTION_BUILDERS[name](cfg, keys)
+    return PERCEPTION_BUILDERS.lookup(name)(cfg, keys)

@@ -9,7 +9,9 @@ Keys (torchrl defaults, matching ``docs/keys.md``): the actor writes ``loc`` and
 and samples ``action`` with its log-probability ``action_log_prob``; the critic writes
 ``state_value``; GAE writes ``advantage`` and ``value_target``. The collector stores the
 rollout-time ``loc`` / ``scale`` in the batch: these are the *old* distribution parameters
-:func:`policy_kl` compares to the current actor's.
+:func:`policy_kl` compares to the current actor's. The loss's output also holds the current
+policy's ``policy_loc`` / ``policy_scale`` from its own forward pass (:class:`PPOLossWithPolicy`),
+from which :func:`rollout_kl` gives the KL to the rollout policy without another actor pass.
 """
 
 from __future__ import annotations
@@ -31,9 +33,12 @@ from legoh_rl.objectives._common import VALID_MASK_KEY
 __all__ = [
     "AdaptiveKLScheduler",
     "PPOConfig",
+    "PPOLossWithPolicy",
     "gaussian_kl",
     "make_ppo_loss",
+    "minibatch_keys",
     "policy_kl",
+    "rollout_kl",
     "set_loss_coefficients",
 ]
 
@@ -85,12 +90,64 @@ class PPOConfig:
             )
 
 
+class PPOLossWithPolicy(ClipPPOLoss):
+    """torchrl's :class:`~torchrl.objectives.ClipPPOLoss`, unchanged, whose output also holds the
+    current policy's distribution parameters from the loss's own forward pass.
+
+    ``loss(minibatch)`` adds ``policy_loc`` and ``policy_scale`` (``(*B, A)``, detached: the mean
+    and standard deviation of the distribution the objective's log-probabilities came from) to
+    torchrl's entries, so that the KL to the rollout policy (:func:`rollout_kl`) costs no further
+    actor pass. Losses, gradients and state dict are ``ClipPPOLoss``'s to the bit.
+
+    Only for a single (not composite) distribution; with a composite one the two entries are
+    absent.
+    """
+
+    def _get_cur_log_prob(self, tensordict: TensorDictBase, params=None):
+        log_prob, dist, is_composite = super()._get_cur_log_prob(tensordict, params)
+        if params is None and not is_composite:  # the current parameters (not a delayed actor's)
+            self._policy = (dist.mean.detach(), dist.stddev.detach())
+        return log_prob, dist, is_composite
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._policy = None
+        out = super().forward(tensordict)
+        if self._policy is not None:
+            out.set("policy_loc", self._policy[0])
+            out.set("policy_scale", self._policy[1])
+        self._policy = None  # the minibatch's tensors are held by the output only
+        return out
+
+
+def minibatch_keys(loss: ClipPPOLoss, *extra: NestedKey) -> list[NestedKey]:
+    """The entries ``loss`` reads from a minibatch once GAE has written ``advantage``,
+    ``value_target`` and ``state_value`` (plus ``extra``, e.g. the rollout ``loc`` / ``scale``
+    that :func:`policy_kl` reads), each once.
+
+    Indexing a batch's minibatches out of ``batch.select(*minibatch_keys(loss), strict=False)``
+    instead of the whole batch gives the loss the same tensors while skipping every entry it
+    never reads (the next observations, reward terms, episode counters, ...): indexing costs one
+    gather per entry and minibatch. The padding masks the loss honours (``("collector", "mask")``,
+    ``shifted_valid``: torchrl's own list, ``_loss_mask_keys``) are included.
+    """
+    keys = loss.tensor_keys
+    wanted = [*loss.actor_network.in_keys, *loss.critic_network.in_keys, keys.action, keys.sample_log_prob,
+              keys.advantage, keys.value_target, keys.value, *loss._loss_mask_keys(), *extra]
+    unique: list[NestedKey] = []
+    for key in wanted:
+        key = key[0] if isinstance(key, tuple) and len(key) == 1 else key  # ("obs",) is "obs"
+        if key not in unique:
+            unique.append(key)
+    return unique
+
+
 def make_ppo_loss(
     actor: TensorDictModuleBase,
     critic: TensorDictModuleBase,
     cfg: PPOConfig | None = None,
-) -> tuple[ClipPPOLoss, GAE]:
-    """Build torchrl's ``ClipPPOLoss`` with a ``GAE`` value estimator, rsl_rl defaults.
+) -> tuple[PPOLossWithPolicy, GAE]:
+    """Build torchrl's ``ClipPPOLoss`` (as :class:`PPOLossWithPolicy`) with a ``GAE`` value
+    estimator, rsl_rl defaults.
 
     Args:
         actor: a probabilistic actor (e.g. ``ProbabilisticActor`` over ``loc``/``scale`` with
@@ -103,14 +160,15 @@ def make_ppo_loss(
         ``torch.no_grad()`` once per collected batch to write ``advantage``,
         ``value_target`` and ``state_value`` (the rollout value the clipped value loss uses),
         then ``loss(minibatch)`` returns ``loss_objective``, ``loss_critic``,
-        ``loss_entropy`` (sum them) and diagnostics (``kl_approx``, ``clip_fraction``, ...).
+        ``loss_entropy`` (sum them), diagnostics (``kl_approx``, ``clip_fraction``, ...) and the
+        current policy's ``policy_loc`` / ``policy_scale`` (:class:`PPOLossWithPolicy`).
         Padding masks written by torchrl (``("collector", "mask")``,
         :data:`~legoh_rl.objectives.VALID_MASK_KEY`, the default of every LEGO-H loss) are
         honoured by the loss (torchrl's ``loss_mask_key="auto"``, which also ANDs the value
         estimator's ``shifted_valid``).
     """
     cfg = cfg if cfg is not None else PPOConfig()
-    loss = ClipPPOLoss(
+    loss = PPOLossWithPolicy(
         actor,
         critic,
         clip_epsilon=cfg.clip_epsilon,
@@ -174,23 +232,47 @@ def policy_kl(
     The old parameters are read from ``tensordict`` at ``old_loc_key`` / ``old_scale_key``
     (written by the collector, ``(*B, A)``); the new ones by running ``actor`` (no grad) on the
     entries it reads, which leaves ``tensordict`` untouched, and reading ``new_loc_key`` /
-    ``new_scale_key`` from its output. Returns the scalar mean of :func:`gaussian_kl` over the
-    samples whose bool mask at ``mask_key`` (default ``("collector", "mask")``,
-    :data:`~legoh_rl.objectives.VALID_MASK_KEY`) is True (all samples if the key is absent
-    or None).
+    ``new_scale_key`` from its output. A probabilistic actor (one with ``get_dist_params``, as
+    torchrl's ``ProbabilisticActor``) runs its parameter network only: no action is drawn and no
+    log-probability computed, which changes none of the values. Returns the scalar mean of
+    :func:`gaussian_kl` over the samples whose bool mask at ``mask_key`` (default
+    ``("collector", "mask")``, :data:`~legoh_rl.objectives.VALID_MASK_KEY`) is True (all
+    samples if the key is absent or None).
     """
-    old_loc = tensordict.get(old_loc_key, None)
-    old_scale = tensordict.get(old_scale_key, None)
-    if old_loc is None or old_scale is None:
-        raise KeyError(
-            f"policy_kl needs the rollout distribution at {old_loc_key!r} and {old_scale_key!r}; "
-            "make the collector keep the actor's loc/scale outputs"
-        )
+    _rollout_params(tensordict, old_loc_key, old_scale_key)  # before running the actor
     with torch.no_grad():
         inputs = tensordict.select(*actor.in_keys, strict=False)
-        out = actor(inputs)
-        new_loc, new_scale = out.get(new_loc_key), out.get(new_scale_key)
-        kl = gaussian_kl(old_loc, old_scale, new_loc, new_scale)
+        out = actor.get_dist_params(inputs) if hasattr(actor, "get_dist_params") else actor(inputs)
+        return rollout_kl(tensordict, out.get(new_loc_key), out.get(new_scale_key), old_loc_key=old_loc_key,
+                          old_scale_key=old_scale_key, mask_key=mask_key)
+
+
+def rollout_kl(
+    tensordict: TensorDictBase,
+    new_loc: Tensor,
+    new_scale: Tensor,
+    *,
+    old_loc_key: NestedKey = "loc",
+    old_scale_key: NestedKey = "scale",
+    mask_key: NestedKey | None = VALID_MASK_KEY,
+) -> Tensor:
+    """Mean KL between the rollout policy stored in a batch and the diagonal Gaussian
+    ``(new_loc, new_scale)`` (``(*B, A)`` each: e.g. the ``policy_loc`` / ``policy_scale`` of a
+    :class:`PPOLossWithPolicy` output), without gradient.
+
+    The old parameters are read from ``tensordict`` at ``old_loc_key`` / ``old_scale_key``
+    (``(*B, A)``). Returns the scalar mean of :func:`gaussian_kl` over the samples whose bool
+    mask at ``mask_key`` (default ``("collector", "mask")``,
+    :data:`~legoh_rl.objectives.VALID_MASK_KEY`) is True (all samples if the key is absent or
+    None).
+
+    Raises:
+        KeyError: the rollout parameters are not in ``tensordict`` (both keys named).
+        ValueError: the mask's shape does not match the KL's batch shape (both shapes named).
+    """
+    old_loc, old_scale = _rollout_params(tensordict, old_loc_key, old_scale_key)
+    with torch.no_grad():
+        kl = gaussian_kl(old_loc, old_scale, new_loc.detach(), new_scale.detach())
         mask = tensordict.get(mask_key, None) if mask_key is not None else None
         if mask is None:
             return kl.mean()
@@ -202,6 +284,18 @@ def policy_kl(
                 f"batch shape {tuple(kl.shape)}"
             )
         return torch.where(mask, kl, torch.zeros_like(kl)).sum() / mask.sum().clamp_min(1)
+
+
+def _rollout_params(tensordict: TensorDictBase, loc_key: NestedKey, scale_key: NestedKey) -> tuple[Tensor, Tensor]:
+    """The rollout policy's ``(loc, scale)`` stored in a batch (a KeyError naming both keys when absent)."""
+    old_loc = tensordict.get(loc_key, None)
+    old_scale = tensordict.get(scale_key, None)
+    if old_loc is None or old_scale is None:
+        raise KeyError(
+            f"the KL to the rollout policy needs its distribution at {loc_key!r} and {scale_key!r}; "
+            "make the collector keep the actor's loc/scale outputs"
+        )
+    return old_loc, old_scale
 
 
 class AdaptiveKLScheduler:

@@ -333,8 +333,11 @@ def resume_path(resume: str | None, run_dir: str | os.PathLike) -> Path | None:
     return Path(resume)
 
 
-#: what a policy needs for inference (evaluate.py, the unified recipe's teacher)
-POLICY_KEYS = ("meta", "oracle_config", "networks", "perception", "actor", "config", "iteration", "frames")
+#: what a policy needs for inference (evaluate.py, the unified recipe's teacher), and what a run
+#: started from it reads of its lineage (its config, frames and gait feedforward schedule:
+#: ``feedforward_anneal=inherit``, :mod:`legoh_rl.training.schedules`)
+POLICY_KEYS = ("meta", "oracle_config", "networks", "perception", "actor", "config", "iteration", "frames",
+               "feedforward_schedule")
 
 
 def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: dict | None = None,

@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from legoh_rl.registry import Registry
+
 from . import prim_obstacles as po
 from . import prim_terrain as pt
 from .patch import Patch
@@ -40,7 +42,7 @@ def _s(name, fn, params, bounds, top, desc) -> PrimitiveSpec:
 
 
 #: The 16 primitives, by name.
-PRIMITIVES: dict[str, PrimitiveSpec] = {
+PRIMITIVES: Registry[PrimitiveSpec] = Registry("terrain primitive", entries={
     s.name: s
     for s in (
         _s("flat", pt.flat, (), (0.0, 0.0), 0.0, "flat ground, 1-2 m"),
@@ -158,7 +160,7 @@ PRIMITIVES: dict[str, PrimitiveSpec] = {
             "two large blocks leaving one narrow passage",
         ),
     )
-}
+})
 
 
 def make_primitive(
@@ -169,7 +171,7 @@ def make_primitive(
     resolution: float = 0.1,
     **overrides,
 ) -> Patch:
-    """Build primitive ``name`` at ``level`` (ValueError listing the names if unknown).
+    """Build primitive ``name`` at ``level`` (ValueError listing the registered names if unknown).
 
     Args:
         name: a key of ``PRIMITIVES``.
@@ -182,9 +184,6 @@ def make_primitive(
     Returns:
         The :class:`Patch` (heights (nx, ny) with ny = width / resolution).
     """
-    if name not in PRIMITIVES:
-        raise ValueError(
-            f"unknown terrain primitive {name!r}; valid primitives: {', '.join(PRIMITIVES)}"
-        )
+    spec = PRIMITIVES.lookup(name)
     gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    return PRIMITIVES[name].fn(level, gen, width=width, resolution=resolution, **overrides)
+    return spec.fn(level, gen, width=width, resolution=resolution, **overrides)
