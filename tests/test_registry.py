@@ -14,15 +14,15 @@ from legoh_rl.registry import Registry
 
 
 class Base:
-    pass
+    """The registry's base class in these tests."""
 
 
 class Small(Base):
-    pass
+    """An entry."""
 
 
 class Large(Base):
-    pass
+    """Another entry."""
 
 
 def shapes() -> Registry[type[Base]]:
@@ -35,7 +35,7 @@ def test_register_by_call_and_as_decorator_returns_the_entry():
 
     @reg.register("large")
     class Decorated(Large):
-        pass
+        """Registered by the decorator form."""
 
     assert reg == {"small": Small, "large": Decorated} and list(reg) == ["small", "large"]
     assert reg.lookup("large") is Decorated and reg["small"] is Small
