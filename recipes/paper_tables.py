@@ -17,10 +17,11 @@ command line.
 Each method is one or more checkpoints under ``--checkpoints`` (``oracle_h1.pt``,
 ``student_h1.pt``, ``student_g1.pt``, ``ablations/<robot>_<row>.pt``; every row under
 ``ablations/`` also takes training seeds, ``ablations/<robot>_<row>_seed<k>.pt``, as the runs of
-``recipes/config/experiment/<robot>_<row>.yaml`` with ``env.seed=<k>`` are named). A student's
-file is checked against the row before it is used (robot, perception, HLM on or off, vanilla
-VAE): ``student_h1.pt`` is a LEGO-H seed when it was trained with HLM and a "w TC-ViT" seed when
-it was not. A row with several matching files is reported as the mean ± std over them (each
+``recipes/config/experiment/<robot>_<row>.yaml`` with ``env.seed=<k>`` are named). The ablation
+rows (LEGO-H, w TC-ViT, Vanilla, ...) read ``ablations/`` alone, trained to one budget, so that
+Table 1 compares methods; ``student_h1.pt``, trained longer, is the row "LEGO-H, trained longer"
+and each row of ours shows its env steps of training. A student's file is checked against the
+row before it is used (robot, perception, HLM on or off, vanilla VAE). A row with several matching files is reported as the mean ± std over them (each
 seed's mean over the trail grids, then over seeds). A row with no matching file is listed as
 *not trained* with the path that would hold it.
 

@@ -145,7 +145,8 @@ def test_every_experiment_names_itself_and_its_recipe(path):
 RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("oracle_g1_randommix", "checkpoints/oracle_g1.pt"),
             ("student_h1_randommix", "checkpoints/student_h1_randommix.pt"),
-            ("student_h1_trails", "checkpoints/student_h1.pt"),
+            ("student_h1_trails", "checkpoints/ablations/h1_lego_h_seed0.pt"),
+            ("student_h1", "checkpoints/student_h1.pt"),
             ("oracle_h1_footholds", "checkpoints/oracle_h1.pt"),
             ("oracle_g1_trails", "checkpoints/oracle_g1_trails.pt"),
             ("g1_lego_h", "checkpoints/student_g1.pt")]

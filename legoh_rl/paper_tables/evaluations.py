@@ -182,6 +182,8 @@ class RowResult:
             (:func:`~legoh_rl.paper_tables.rows.across_seeds`).
         paths: every checkpoint of the row (its training seeds).
         per_seed: each checkpoint's own aggregate, in the order of ``paths``.
+        frames: each checkpoint's env steps of training, in the order of ``paths`` (None: not
+            recorded).
     """
 
     key: str
@@ -191,6 +193,7 @@ class RowResult:
     rows: dict[str, dict[str, Value]] | None = field(default=None, repr=False)
     paths: tuple[Path, ...] = ()
     per_seed: list[dict] | None = field(default=None, repr=False)
+    frames: tuple[int | None, ...] = ()
 
 
 def run_rows(keys: Sequence[str], root: Path, settings: Settings, out: Path,
@@ -231,9 +234,11 @@ def run_rows(keys: Sequence[str], root: Path, settings: Settings, out: Path,
         failed = [str(value) if len(res.paths) == 1 else f"{p}: {value}"
                   for p, (status, value) in zip(res.paths, outcomes, strict=True) if status == "failed"]
         if failed:  # a row is not reported on fewer seeds than it has
-            results[key] = RowResult(key, "failed", res.path, note="; ".join(failed), paths=res.paths)
+            results[key] = RowResult(key, "failed", res.path, note="; ".join(failed), paths=res.paths,
+                                     frames=res.frames)
             continue
         per_seed = [value for _, value in outcomes]
         rows = per_seed[0] if len(per_seed) == 1 else across_seeds(per_seed)
-        results[key] = RowResult(key, "evaluated", res.path, rows=rows, paths=res.paths, per_seed=per_seed)
+        results[key] = RowResult(key, "evaluated", res.path, rows=rows, paths=res.paths, per_seed=per_seed,
+                                 frames=res.frames)
     return results

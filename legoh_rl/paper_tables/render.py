@@ -13,7 +13,7 @@ from pathlib import Path
 from legoh_rl.paper_tables.evaluations import RowResult
 from legoh_rl.paper_tables.paper import METRICS, TABLES, PaperRow, PaperTable, Value, check_unique
 
-__all__ = ["fmt", "markdown", "csv_rows", "CSV_FIELDS", "write_tables", "fill_markers", "into_files"]
+__all__ = ["fmt", "env_steps", "markdown", "csv_rows", "CSV_FIELDS", "write_tables", "fill_markers", "into_files"]
 
 
 def fmt(value: Value | None) -> str:
@@ -24,6 +24,16 @@ def fmt(value: Value | None) -> str:
     if math.isnan(mean):
         return "n/a"
     return f"{mean:.2f} ± {std:.2f}"
+
+
+def env_steps(frames: Sequence[int | None]) -> str:
+    """A row's training budget: ``"1.70M"`` (one checkpoint, or several seeds with the same
+    budget), ``"1.70M-1.72M"`` (seeds that differ), ``"—"`` when no checkpoint recorded it."""
+    known = sorted(int(f) for f in frames if f is not None)
+    if not known:
+        return "—"
+    lo, hi = f"{known[0] / 1e6:.2f}M", f"{known[-1] / 1e6:.2f}M"
+    return lo if lo == hi else f"{lo}-{hi}"
 
 
 def _ours(row: PaperRow, result: RowResult | None) -> tuple[str, dict[str, Value | None], str]:
@@ -56,8 +66,9 @@ def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
         the markdown (a heading, the note if any, the table).
     """
     grouped = any(r.group != "overall" for r in table.rows)
-    head = ["method"] + (["trails"] if grouped else []) + ["source"] + [METRICS[m][0] for m in METRICS]
-    head += [] if results is None else ["checkpoint"]
+    head = ["method"] + (["trails"] if grouped else []) + ["source"]
+    head += [] if results is None else ["env steps"]
+    head += [METRICS[m][0] for m in METRICS] + ([] if results is None else ["checkpoint"])
     lines = [f"### {table.caption} (`{table.label}`)", ""]
     if table.note:
         lines += [table.note, ""]
@@ -66,12 +77,15 @@ def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
     for row in table.rows:
         trails = [row.group] if grouped else []
         if results is not None:
-            status, ours, where = _ours(row, results.get(row.key))
+            res = results.get(row.key)
+            status, ours, where = _ours(row, res)
             cells = [fmt(ours[m]) for m in METRICS] if status == "evaluated" else [status] + ["—"] * (len(METRICS) - 1)
-            lines.append("| " + " | ".join([row.method, *trails, "ours", *cells, where]) + " |")
+            steps = env_steps(res.frames if res is not None else ())
+            lines.append("| " + " | ".join([row.method, *trails, "ours", steps, *cells, where]) + " |")
         if row.paper is not None:
             name = "" if results is not None else row.method
-            lines.append("| " + " | ".join([name, *trails, "paper", *(fmt(row.paper[m]) for m in METRICS)]
+            lines.append("| " + " | ".join([name, *trails, "paper", *([""] if results is not None else []),
+                                            *(fmt(row.paper[m]) for m in METRICS)]
                                            + ([""] if results is not None else [])) + " |")
     return "\n".join(lines)
 
@@ -79,8 +93,8 @@ def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
 def csv_rows(table: PaperTable, results: Mapping[str, RowResult] | None) -> list[dict]:
     """One table as CSV records: per method one ``ours`` record (unless ``results`` is None) and
     one ``paper`` record (when the paper has the row), each with ``<metric>_mean``/``_std``
-    (empty when there is no figure) and ``status``/``checkpoint``/``note`` (a row's training
-    seeds' checkpoints joined by ``;``)."""
+    (empty when there is no figure) and ``status``/``checkpoint``/``env_steps``/``note`` (a
+    row's training seeds' checkpoints and their env steps of training joined by ``;``)."""
     out = []
     for row in table.rows:
         base = {"table": table.name, "label": table.label, "method": row.method, "row": row.key, "trails": row.group}
@@ -88,17 +102,19 @@ def csv_rows(table: PaperTable, results: Mapping[str, RowResult] | None) -> list
             res = results.get(row.key)
             status, ours, _ = _ours(row, res)
             where = "" if res is None else ";".join(str(q) for q in (res.paths or (res.path,)))
-            rec = {**base, "source": "ours", "status": status, "checkpoint": where,
+            steps = "" if res is None else ";".join("" if f is None else str(f) for f in res.frames)
+            rec = {**base, "source": "ours", "status": status, "checkpoint": where, "env_steps": steps,
                    "note": res.note if res else ""}
             out.append(_with_metrics(rec, ours))
         if row.paper is not None:
-            out.append(_with_metrics({**base, "source": "paper", "status": "paper", "checkpoint": "", "note": ""},
+            out.append(_with_metrics({**base, "source": "paper", "status": "paper", "checkpoint": "", "env_steps": "",
+                                      "note": ""},
                                      row.paper))
     return out
 
 
 CSV_FIELDS = (["table", "label", "method", "row", "trails", "source", "status"]
-              + [f"{m}_{s}" for m in METRICS for s in ("mean", "std")] + ["checkpoint", "note"])
+              + [f"{m}_{s}" for m in METRICS for s in ("mean", "std")] + ["checkpoint", "env_steps", "note"])
 
 
 def _with_metrics(rec: dict, values: Mapping[str, Value | None]) -> dict:

@@ -56,15 +56,16 @@ def _student(key: str, perception: str, hlm: bool | None = None, vanilla_vae: bo
 
 
 #: every method of the tables, by key. LEGO-H is TC-ViT with HLM (masked VAE); "w TC-ViT" is
-#: TC-ViT without HLM, held by ``ablations/h1_no_hlm.pt`` or else by ``student_h1.pt`` when that
-#: student was trained without HLM. The paper does not say whether Vanilla (ConvGRU), w CTs and
-#: the RMA baselines used HLM, so those rows accept either; EP-H and EP-H + HLM differ by it.
+#: TC-ViT without HLM. The ablation rows (``ablations/<key>.pt``, ``ablations/<key>_seed*.pt``)
+#: share one training budget, so that Table 1 compares methods, not budgets; ``student_h1.pt``,
+#: the H1 student trained for longer, is a row of its own (``h1_lego_h_long``). The paper does
+#: not say whether Vanilla (ConvGRU), w CTs and the RMA baselines used HLM, so those rows accept
+#: either; EP-H and EP-H + HLM differ by it.
 ROWS: dict[str, RowSpec] = {spec.key: spec for spec in (
     RowSpec("h1_oracle", "h1", "oracle", ("oracle_h1.pt",)),
-    _student("h1_lego_h", "tcvit", hlm=True, vanilla_vae=False,
-             paths=("student_h1.pt", "ablations/h1_lego_h_seed*.pt")),
-    _student("h1_no_hlm", "tcvit", hlm=False,
-             paths=("ablations/h1_no_hlm.pt", "ablations/h1_no_hlm_seed*.pt", "student_h1.pt")),
+    _student("h1_lego_h", "tcvit", hlm=True, vanilla_vae=False),
+    _student("h1_lego_h_long", "tcvit", hlm=True, vanilla_vae=False, paths=("student_h1.pt",)),
+    _student("h1_no_hlm", "tcvit", hlm=False),
     _student("h1_vanilla", "vanilla"),
     _student("h1_eph", "eph", hlm=False),
     _student("h1_rmah", "rmah", locomotion="oracle"),  # RMA: "a frozen oracle policy with an adapter"
@@ -85,6 +86,7 @@ class CheckpointInfo:
         robot, kind, perception: ``meta["robot"]``, ``meta["kind"]``, ``meta["perception"]``.
         hlm: trained with HLM; vanilla_vae: HLM's prior was the vanilla VAE (False without HLM).
         locomotion: ``meta["locomotion"]``, ``"learned"`` when absent (a student's own MLP).
+        frames: the env steps it was trained for (the checkpoint's ``frames``).
     """
 
     robot: str | None
@@ -93,9 +95,11 @@ class CheckpointInfo:
     hlm: bool | None = None
     vanilla_vae: bool | None = None
     locomotion: str | None = None
+    frames: int | None = None
 
 
-def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int | None = None) -> CheckpointInfo:
+def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int | None = None,
+                    frames: int | None = None) -> CheckpointInfo:
     """Read a checkpoint's ``meta`` block (and its training ``config``, for HLM).
 
     ``recipes/unified.py`` records the robot, kind, perception and preset in ``meta`` but not
@@ -111,6 +115,7 @@ def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int
         meta: the checkpoint's ``meta`` dict.
         config: the checkpoint's ``config`` dict (or None).
         iteration: the checkpoint's training iteration (or None: warm-up not checked).
+        frames: the checkpoint's env steps (or None: not recorded).
 
     Returns:
         the :class:`CheckpointInfo`.
@@ -130,7 +135,8 @@ def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int
     return CheckpointInfo(robot=meta.get("robot"), kind=kind,
                           perception=meta.get("perception") if kind == "student" else None,
                           hlm=hlm if kind == "student" else None, vanilla_vae=vae if kind == "student" else None,
-                          locomotion=meta.get("locomotion", "learned") if kind == "student" else None)
+                          locomotion=meta.get("locomotion", "learned") if kind == "student" else None,
+                          frames=None if frames is None else int(frames))
 
 
 def describe(info: CheckpointInfo) -> str:
@@ -176,7 +182,7 @@ def mismatch(spec: RowSpec, info: CheckpointInfo) -> str | None:
 def read_info(path: Path) -> CheckpointInfo:
     """:func:`checkpoint_info` of the checkpoint at ``path`` (loaded to the CPU)."""
     state = load_checkpoint(path)
-    return checkpoint_info(state["meta"], state.get("config"), state.get("iteration"))
+    return checkpoint_info(state["meta"], state.get("config"), state.get("iteration"), state.get("frames"))
 
 
 @dataclass(frozen=True)
@@ -189,6 +195,7 @@ class Resolution:
         found: whether the row has a checkpoint.
         note: what the other candidate files hold, when some exist but do not match.
         paths: every matching checkpoint, one per training seed (empty when not found).
+        frames: each one's env steps of training, in the order of ``paths`` (None: not recorded).
     """
 
     key: str
@@ -196,6 +203,7 @@ class Resolution:
     found: bool
     note: str = ""
     paths: tuple[Path, ...] = ()
+    frames: tuple[int | None, ...] = ()
 
 
 def resolve_row(spec: RowSpec, root: Path, read: Callable[[Path], CheckpointInfo] = read_info) -> Resolution:
@@ -211,7 +219,7 @@ def resolve_row(spec: RowSpec, root: Path, read: Callable[[Path], CheckpointInfo
         the :class:`Resolution`; when no candidate matches, ``path`` is the first candidate and
         ``note`` says what each existing candidate holds instead.
     """
-    notes, found = [], []
+    notes, found, frames = [], [], []
     for rel in spec.paths:
         for path in (sorted(root.glob(rel)) if any(c in rel for c in "*?[") else [root / rel]):
             if not path.is_file() or path in found:
@@ -220,10 +228,11 @@ def resolve_row(spec: RowSpec, root: Path, read: Callable[[Path], CheckpointInfo
             why = mismatch(spec, info)
             if why is None:
                 found.append(path)
+                frames.append(info.frames)
             else:
                 notes.append(f"{path} holds the {describe(info)}: {why}")
     if found:
-        return Resolution(spec.key, found[0], True, "; ".join(notes), paths=tuple(found))
+        return Resolution(spec.key, found[0], True, "; ".join(notes), paths=tuple(found), frames=tuple(frames))
     return Resolution(spec.key, root / spec.paths[0], False, "; ".join(notes))
 
 
