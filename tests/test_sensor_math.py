@@ -5,7 +5,14 @@ import numpy as np
 import pytest
 import torch
 
-from legoh_rl.envs.sensors import FOOT_SCAN_OFFSETS, foot_scan, quat_to_rotmat, scandot_offsets, scandots, yaw_from_quat
+from legoh_rl.envs.sensors import (
+    FOOT_SCAN_OFFSETS,
+    foot_scan,
+    quat_to_rotmat,
+    scandot_offsets,
+    scandots,
+    yaw_from_quat,
+)
 from legoh_rl.envs.trail_source import trails_for
 
 
