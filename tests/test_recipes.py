@@ -720,6 +720,24 @@ def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(
     assert math.isclose(schedule.gain / schedule.anneal[1], 0.922 / 36_900_000)
 
 
+def test_experiment_oracle_h1_foot_scan_is_stage_4_widening_stage_3(tmp_path):
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_foot_scan", f"checkpoint.dir={tmp_path}"])
+    rungs = cfg_of("oracle_ppo", ["experiment=oracle_h1_pit_rungs", f"checkpoint.dir={tmp_path}"])
+    assert cfg.checkpoint.init == "runs/oracle_h1_pit_rungs/last.pt" and Path(cfg.checkpoint.init).is_file()
+    assert cfg.checkpoint.init_widen is True and cfg.collector.total_frames == 20_000_000
+    assert {**cfg.env, "foot_scan": False} == dict(rungs.env) and cfg.env.foot_scan is True
+    assert cfg.ppo == rungs.ppo and cfg.model == rungs.model
+    oracle_ppo.validate(cfg)
+    schedule, _ = oracle_ppo.feedforward_schedule(cfg)  # stage 3's gain at its end, on its slope
+    assert schedule.gain == load_checkpoint(cfg.checkpoint.init)["meta"]["gait_feedforward"]
+    # stage 3's networks widen onto the foot scan's 222 columns (a small env of the same settings)
+    small = cfg_of("oracle_ppo", ["experiment=oracle_h1_foot_scan", f"checkpoint.dir={tmp_path}", "env.num_envs=2",
+                                  "env.categories=[randommix]", "env.category_weights=null", "env.variants=1",
+                                  "env.num_threads=1", "logger.backend=csv"])
+    parts = oracle_ppo.build(small)
+    assert parts.meta["init_widened"]["scandots"] == [132, 222] and parts.env.cfg.gait_feedforward == schedule.gain
+
+
 @pytest.mark.parametrize("run", ["oracle_h1_footholds", "oracle_h1_pit_rungs"])
 def test_a_resumed_inheriting_stage_keeps_the_schedule_its_own_state_recorded(tmp_path, run):
     """The committed run states were started with the gains copied by hand: resumed under
