@@ -45,7 +45,7 @@ import torch
 from hydra import compose, initialize_config_dir
 
 from legoh_rl.envs import HikingEnv, HikingEnvConfig
-from legoh_rl.training.builders import gait_kwargs
+from legoh_rl.training.builders import policy_env_kwargs
 from legoh_rl.training.checkpoint import load_checkpoint
 from legoh_rl.training.config_store import env_config
 
@@ -92,7 +92,7 @@ def student_env(name: str):
     """``(config, env config)`` of experiment ``name``: its env section in student mode (depth on),
     with its teacher's gait clock, as ``recipes/unified.py`` builds it."""
     cfg = compose_cfg("unified", [f"experiment={name}"])
-    return cfg, env_config(cfg.env, "student", **gait_kwargs(load_checkpoint(ROOT / cfg.teacher)["meta"]))
+    return cfg, env_config(cfg.env, "student", **policy_env_kwargs(load_checkpoint(ROOT / cfg.teacher)["meta"]))
 
 
 def alone_rates(args) -> dict[str, float]:

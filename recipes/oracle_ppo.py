@@ -9,6 +9,8 @@ checkpoints are written atomically and can be resumed.
     python recipes/oracle_ppo.py env.robot=g1 env.num_envs=256
     python recipes/oracle_ppo.py checkpoint.resume=auto           # continue the last run
     python recipes/oracle_ppo.py checkpoint.init=checkpoints/oracle_h1.pt   # warm start from a policy
+    python recipes/oracle_ppo.py env.foot_scan=true checkpoint.init=... checkpoint.init_widen=true
+        # a warm start onto wider scandots: the new columns' first-layer weights start at zero
     python recipes/oracle_ppo.py device=cuda collector.workers=4  # a GPU for the networks, 4 collecting processes
     python recipes/oracle_ppo.py collector.workers=8 collector.backend=ray collector.ray.address=auto  # a Ray cluster
     python recipes/oracle_ppo.py kl_measure=loss_forward      # rsl_rl's KL order: ~20% less update time, other learning
@@ -31,7 +33,7 @@ from omegaconf import DictConfig
 
 from legoh_rl.envs.threads import torch_threads
 from legoh_rl.modules.configs import OracleConfig
-from legoh_rl.modules.oracle import oracle_network_class
+from legoh_rl.modules.oracle import oracle_network_class, scandot_input_keys
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
     make_ppo_loss,
@@ -58,8 +60,9 @@ from legoh_rl.training.checkpoint import (
     require_training_state,
     resume_path,
     set_rng_state,
+    widen_input_columns,
 )
-from legoh_rl.training.config_checks import Choice, Integer, ListOf, Name, Number, OneOf
+from legoh_rl.training.config_checks import Choice, Flag, Integer, ListOf, Name, Number, OneOf
 from legoh_rl.training.config_store import env_config, ppo_config, register_configs
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.run_dir import check_run_dir
@@ -77,6 +80,10 @@ from legoh_rl.training.stats import explained_variance
 
 register_configs()  # the env and ppo groups' defaults, read from HikingEnvConfig and PPOConfig
 
+#: the meta block's record of a run started from narrower scandots (``checkpoint.init_widen``:
+#: :func:`init_networks`), kept by its checkpoints and exports
+WIDENED_KEY = "init_widened"
+
 #: ``kl_measure``'s choices: which KL to the rollout policy moves the learning rate (:func:`ppo_update`)
 KL_MEASURES = ("after_step", "loss_forward")
 
@@ -88,6 +95,7 @@ SETTINGS = {
     "model.max_std": Number(0, low_open=True, nullable=True),
     "model.network": Name(),  # a name in ORACLE_NETWORKS: oracle_network_class
     "checkpoint.init": Name(nullable=True),
+    "checkpoint.init_widen": Flag(),  # zero weights on the scandot columns checkpoint.init's networks lack
     # [start, end] (check_anneal), or inherit: feedforward_schedule
     "feedforward_anneal": OneOf((ListOf(Integer(0)), Choice((INHERIT,))), "[start_frames, end_frames] or inherit",
                                 nullable=True),
@@ -184,20 +192,62 @@ def check_network(state: dict, networks, path: str, what: str) -> None:
                          f"(this run has model.network={networks.cfg.network})")
 
 
-def init_networks(networks, env, path: str) -> None:
-    """Start a fresh run from the networks of a policy file (slim export or training checkpoint)."""
+def init_networks(networks, env, path: str, widen: bool = False) -> dict:
+    """Start a fresh run from the networks of a policy file (slim export or training checkpoint).
+
+    ``widen`` (``checkpoint.init_widen``): the file's networks read narrower scandots than this
+    run's env gives (a policy trained before ``env.foot_scan``): the first layers that read the
+    scandots (:func:`~legoh_rl.modules.oracle.scandot_input_keys`: the actor's and the critic's
+    encoders) start with the file's weights on the old columns and zeros on the new ones
+    (:func:`~legoh_rl.training.checkpoint.widen_input_columns`), every other weight is copied, so
+    the run starts acting (and valuing) exactly as the file's policy did.
+
+    Returns:
+        The run's meta record of the widening, ``{WIDENED_KEY: {"checkpoint": path, "scandots":
+        [old, new] columns, "layers": {key: [old shape, new shape]}}}``; ``{}`` without one.
+
+    Raises:
+        ValueError: not an oracle policy; another network, robot, layout or gait clock; narrower
+            scandots without ``widen`` (names the first layer, both its shapes and the switch);
+            ``widen`` with scandots as wide as this run's (nothing to widen).
+    """
     state = load_checkpoint(path)
-    if "networks" not in state or state.get("meta", {}).get("kind") != "oracle":
-        raise ValueError(f"checkpoint.init: {path} holds no oracle networks (kind {state.get('meta', {}).get('kind')!r})")
+    meta = state.get("meta", {})
+    if "networks" not in state or meta.get("kind") != "oracle":
+        raise ValueError(f"checkpoint.init: {path} holds no oracle networks (kind {meta.get('kind')!r})")
+    check_network(state, networks, path, "start from it")
+    weights, own, keys = state["networks"], networks.state_dict(), scandot_input_keys(networks)
+    narrower = [k for k in keys if k in weights and tuple(weights[k].shape) != tuple(own[k].shape)]
+    width = int(env.observation_spec["scandots"].shape[-1])
+    if narrower and not widen:
+        k = narrower[0]
+        raise ValueError(f"checkpoint.init: {path}'s {k} is {tuple(weights[k].shape)}, this run's {tuple(own[k].shape)}: "
+                         f"its networks read {weights[k].shape[-1]} scandot columns, this run's env gives {width} "
+                         f"(env.foot_scan={env.cfg.foot_scan}); set checkpoint.init_widen=true to start from it with "
+                         "zero weights on the new columns")
+    if widen and not narrower:
+        raise ValueError(f"checkpoint.init_widen=true: {path}'s networks read this run's {width} scandot columns "
+                         "already: nothing to widen (drop checkpoint.init_widen)")
     expected = policy_meta(env, "oracle")
     expected.pop("gait_feedforward", None)  # a warm start may go on with another gain (a later anneal stage)
-    check_meta(state["meta"], expected, path)
-    check_network(state, networks, path, "start from it")
+    record = {}
+    if widen:  # the widening accounts for the scandots' layout: all else must match
+        weights, layers = widen_input_columns(weights, own, keys, path)
+        expected["obs_layout"] = {**expected["obs_layout"], "scandots": meta.get("obs_layout", {}).get("scandots")}
+        expected.pop("foot_scan", None)
+        if "foot_scan" in meta:
+            expected["foot_scan"] = meta["foot_scan"]
+        old = int(state["networks"][narrower[0]].shape[-1])
+        record = {WIDENED_KEY: {"checkpoint": str(path), "scandots": [old, width], "layers": layers}}
+    check_meta(meta, expected, path)
     have = (state.get("oracle_config") or {}).get("actor_layers")
-    load_weights(networks, state["networks"], path, "networks",
+    load_weights(networks, weights, path, "networks",
                  f"checkpoint.init needs model.layers={list(have) if have else '<its sizes>'} (other network sizes "
                  f"than model.layers={list(networks.cfg.actor_layers)})")
-    print(f"initialised from {path} (its iteration {state.get('iteration')}, {state.get('frames')} frames)")
+    widened = (f"; scandot input layers {sorted(record[WIDENED_KEY]['layers'])} widened from "
+               f"{record[WIDENED_KEY]['scandots'][0]} to {width} columns, the new ones zero" if record else "")
+    print(f"initialised from {path} (its iteration {state.get('iteration')}, {state.get('frames')} frames){widened}")
+    return record
 
 
 def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
@@ -271,11 +321,13 @@ class OracleTrainer(Trainer):
         self.networks, self.actor, self.loss, self.gae, self.optim, self.sched = networks, actor, loss, gae, optim, sched
         self.update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
         self.feedforward: FeedforwardSchedule | None = None  # None: the env's gain stays (build sets it)
+        self.lineage: dict = {}  # the widening of checkpoint.init's networks, if any (build sets it)
 
     @property
     def meta(self) -> dict:
-        """What a loader must match, with the feedforward gain the last batch was collected with."""
-        return policy_meta(self.env, "oracle")
+        """What a loader must match, with the feedforward gain the last batch was collected with,
+        and the record of a widened start (:data:`WIDENED_KEY`)."""
+        return {**policy_meta(self.env, "oracle"), **self.lineage}
 
     def before_collect(self) -> None:
         set_feedforward(self.env, self.feedforward, self.frames)
@@ -325,7 +377,8 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     if path is None:
         set_feedforward(env, trainer.feedforward, 0)
         if cfg.checkpoint.get("init") is not None:
-            init_networks(networks, env, cfg.checkpoint.init)
+            trainer.lineage = init_networks(networks, env, cfg.checkpoint.init,
+                                            widen=bool(cfg.checkpoint.get("init_widen", False)))
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
@@ -334,6 +387,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
         if cfg.get("feedforward_anneal") is not None:  # saved one batch before the gain resumes at
             expected.pop("gait_feedforward", None)
         check_meta(state["meta"], expected, path)
+        trainer.lineage = {k: state["meta"][k] for k in (WIDENED_KEY,) if k in state["meta"]}  # kept by every checkpoint
         check_network(state, networks, path, "resume it")
         have = (state.get("oracle_config") or {}).get("actor_layers")
         load_weights(loss, state["loss"], path, "networks",

@@ -43,10 +43,10 @@ from legoh_rl.objectives.ppo import AdaptiveKLScheduler, make_ppo_loss, policy_k
 from legoh_rl.training import runner
 from legoh_rl.training.builders import (
     check_recipe_settings,
-    gait_kwargs,
     load_optimizer,
     make_adam,
     make_env,
+    policy_env_kwargs,
     policy_meta,
     require_count,
 )
@@ -303,7 +303,7 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
     torch.set_num_threads(int(cfg.torch_threads))
     torch.manual_seed(int(cfg.env.seed))
     teacher = Teacher(cfg.teacher, cfg.env.robot, device)
-    base = make_env(cfg.env, mode="student", device=str(device), **gait_kwargs(teacher.meta))  # the teacher's clock
+    base = make_env(cfg.env, mode="student", device=str(device), **policy_env_kwargs(teacher.meta))  # the teacher's clock, scandots
     init_std = cfg.student.get("init_std") or float(teacher.action_std.mean())  # null: the teacher's
     oracle = frozen_oracle(cfg)
     oracle_config = dataclasses.asdict(teacher.networks.cfg) if oracle else None

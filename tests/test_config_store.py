@@ -16,7 +16,7 @@ from legoh_rl.envs import HikingEnvConfig
 from legoh_rl.envs.randomization import DomainRandConfig
 from legoh_rl.kinds import Choice, Flag, Integer, ListOf, MapOf, Name, Number, OneOf, field_kind
 from legoh_rl.objectives.ppo import PPOConfig
-from legoh_rl.training.builders import gait_kwargs
+from legoh_rl.training.builders import policy_env_kwargs
 from legoh_rl.training.checkpoint import load_checkpoint
 from legoh_rl.training.config_store import (
     SET_BY_RECIPE,
@@ -248,7 +248,7 @@ def test_committed_run_configs_upgrade_to_configs_today_builds():
     for path in ("checkpoints/student_h1.pt", "checkpoints/oracle_h1.pt"):
         state = load_checkpoint(ROOT / path)
         config = upgrade_recorded_config(state["config"])
-        env = env_config(config["env"], state["meta"]["kind"], **gait_kwargs(state["meta"]))  # (a student's: its teacher's)
+        env = env_config(config["env"], state["meta"]["kind"], **policy_env_kwargs(state["meta"]))  # (a student's: its teacher's)
         assert env.robot == "h1"
         ppo_config(config["ppo"], ("weight",))
 

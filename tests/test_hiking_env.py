@@ -249,6 +249,25 @@ def test_scandots_read_a_step():
     assert dots[~on_step].std().item() < 1e-6
 
 
+def test_foot_scan_extends_scandots_and_reads_a_step_ahead_of_the_feet():
+    """``foot_scan``: 90 columns after the 132 scandots; at the spawn (yaw 0, no jitter) the H1
+    ankles stand at x = 0, so a 5 cm step from x = 0.175 lies under grid rows 6-8 (0.2-0.3 m
+    ahead) of both feet and not under rows 0-5 (up to 0.15 m ahead). Off the step each point
+    reads the floor below the sole, -(z_ankle - 0.065); on it 5 cm more."""
+    step = ([1.175, 0.0, 0.025], [1.0, 2.0, 0.025])
+    env = make(n=1, scene=BoxScene(boxes=[step]), foot_scan=True, **quiet())
+    assert env.observation_spec["scandots"].shape == (1, 132 + 90)
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    scan = td["scandots"][0, 132:].reshape(2, 9, 5).double().numpy()  # (left, right), forward, left
+    feet = env.worlds.xpos[0, env.built.foot_body_ids]
+    np.testing.assert_allclose(feet[:, 0], 0.0, atol=1e-3)
+    floor = -(feet[:, 2] - env.robot.foot_rest_height)
+    np.testing.assert_allclose(scan[:, :6], np.broadcast_to(floor[:, None, None], (2, 6, 5)), atol=1e-6)
+    np.testing.assert_allclose(scan[:, 6:], np.broadcast_to(floor[:, None, None] + 0.05, (2, 3, 5)), atol=1e-6)
+    assert torch.equal(td["scandots"][:, :132], make(n=1, scene=BoxScene(boxes=[step]), **quiet()).reset()["scandots"])
+
+
 def test_bad_actions():
     env = make(n=2)
     env.reset()

@@ -547,6 +547,64 @@ def test_init_from_a_policy_that_does_not_fit_is_refused(tmp_path, extra, messag
         oracle_ppo.build(cfg)
 
 
+def test_init_widen_starts_a_foot_scan_run_acting_as_the_narrower_policy(tmp_path):
+    """A policy trained on the 132 scandots starts a foot_scan run (222 columns) only with
+    checkpoint.init_widen: the first scandot layers of actor and critic get zero weights on the 90
+    new columns, everything else is copied, so the run's actions and values equal the old
+    policy's on the same observation whatever the new columns hold. The widening is recorded in
+    the meta block (kept on resume) and the config; evaluation rebuilds the foot scan."""
+    from tensordict import TensorDict
+
+    from legoh_rl.modules.oracle import make_oracle_actor, make_oracle_critic
+    from legoh_rl.training.builders import oracle_networks
+    from legoh_rl.training.evaluation import EvalProtocol
+    from legoh_rl.training.policies import load_policy
+
+    src = tmp_path / "src"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={src}"]))
+    scan = TINY + ["env.foot_scan=true", f"checkpoint.init={src / 'last.pt'}"]
+    with pytest.raises(ValueError, match=r"last.pt's scandot_encoder.0.weight is \(128, 132\), this run's \(128, 222\)"
+                                         r".*checkpoint.init_widen=true"):
+        oracle_ppo.build(cfg_of("oracle_ppo", scan + [f"checkpoint.dir={tmp_path / 'refused'}"]))
+    with pytest.raises(ValueError, match=r"init_widen=true: .* read this run's 132 scandot columns already"):
+        oracle_ppo.build(cfg_of("oracle_ppo", TINY + [f"checkpoint.init={src / 'last.pt'}", "checkpoint.init_widen=true",
+                                                      f"checkpoint.dir={tmp_path / 'same'}"]))
+    cfg = cfg_of("oracle_ppo", scan + ["checkpoint.init_widen=true", f"checkpoint.dir={tmp_path / 'wide'}",
+                                       "collector.total_frames=32"])
+    parts = oracle_ppo.build(cfg)
+    old_state = load_checkpoint(src / "last.pt")
+    old = oracle_networks(old_state)
+    layers = {"scandot_encoder.0.weight": [[128, 132], [128, 222]],
+              "critic.scandot_encoder.0.weight": [[128, 132], [128, 222]]}
+    record = {"checkpoint": str(src / "last.pt"), "scandots": [132, 222], "layers": layers}
+    assert parts.meta["init_widened"] == record and parts.meta["foot_scan"] is True
+    for key, value in parts.networks.state_dict().items():
+        if key in layers:
+            assert torch.equal(value[:, :132], old_state["networks"][key]) and not value[:, 132:].any(), key
+        else:
+            assert torch.equal(value, old_state["networks"][key]), key
+    obs = parts.env.observation_spec.rand()
+    obs["scandots"] = torch.rand(4, 222) * 2 - 1  # arbitrary values in the 90 new columns too
+    narrow = TensorDict({k: obs[k] for k in ("proprio", "privileged", "expert_goals")}, batch_size=[4])
+    narrow["scandots"] = obs["scandots"][:, :132]
+    with torch.no_grad():
+        new_loc = make_oracle_actor(parts.networks)(obs.clone())["loc"]
+        old_loc = make_oracle_actor(old)(narrow.clone())["loc"]
+        torch.testing.assert_close(new_loc, old_loc, atol=1e-6, rtol=1e-6)
+        torch.testing.assert_close(make_oracle_critic(parts.networks)(obs.clone())["state_value"],
+                                   make_oracle_critic(old)(narrow.clone())["state_value"], atol=1e-6, rtol=1e-6)
+    oracle_ppo.train(cfg, env=parts.env)
+    saved = load_checkpoint(tmp_path / "wide" / "last.pt")
+    assert saved["meta"]["init_widened"] == record and saved["config"]["checkpoint"]["init_widen"] is True
+    resumed = oracle_ppo.build(cfg_of("oracle_ppo", scan + ["checkpoint.init_widen=true", "checkpoint.resume=auto",
+                                                            f"checkpoint.dir={tmp_path / 'wide'}"]))
+    assert resumed.meta["init_widened"] == record
+    env, policy, kind = load_policy(str(tmp_path / "wide" / "last.pt"),
+                                    EvalProtocol(categories=("randommix",), levels=(0,), robots_per_cell=1))
+    assert kind == "oracle" and env.cfg.foot_scan and env.observation_spec["scandots"].shape == (1, 222)
+    assert policy(env.reset())["action"].shape == (1, env.A)
+
+
 def test_init_path_missing_is_refused(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"checkpoint.init: no policy at /nope/policy.pt"):
         oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["checkpoint.init=/nope/policy.pt", f"checkpoint.dir={tmp_path}"]))
@@ -660,6 +718,24 @@ def test_experiment_oracle_h1_pit_rungs_is_stage_3_with_shallower_training_pits(
     assert schedule.gain == start["meta"]["gait_feedforward"] == 0.5082723642276423
     assert schedule.anneal == (0, 36_900_000 - start["frames"]) == (0, 20_341_920)
     assert math.isclose(schedule.gain / schedule.anneal[1], 0.922 / 36_900_000)
+
+
+def test_experiment_oracle_h1_foot_scan_is_stage_4_widening_stage_3(tmp_path):
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_foot_scan", f"checkpoint.dir={tmp_path}"])
+    rungs = cfg_of("oracle_ppo", ["experiment=oracle_h1_pit_rungs", f"checkpoint.dir={tmp_path}"])
+    assert cfg.checkpoint.init == "runs/oracle_h1_pit_rungs/last.pt" and Path(cfg.checkpoint.init).is_file()
+    assert cfg.checkpoint.init_widen is True and cfg.collector.total_frames == 20_000_000
+    assert {**cfg.env, "foot_scan": False} == dict(rungs.env) and cfg.env.foot_scan is True
+    assert cfg.ppo == rungs.ppo and cfg.model == rungs.model
+    oracle_ppo.validate(cfg)
+    schedule, _ = oracle_ppo.feedforward_schedule(cfg)  # stage 3's gain at its end, on its slope
+    assert schedule.gain == load_checkpoint(cfg.checkpoint.init)["meta"]["gait_feedforward"]
+    # stage 3's networks widen onto the foot scan's 222 columns (a small env of the same settings)
+    small = cfg_of("oracle_ppo", ["experiment=oracle_h1_foot_scan", f"checkpoint.dir={tmp_path}", "env.num_envs=2",
+                                  "env.categories=[randommix]", "env.category_weights=null", "env.variants=1",
+                                  "env.num_threads=1", "logger.backend=csv"])
+    parts = oracle_ppo.build(small)
+    assert parts.meta["init_widened"]["scandots"] == [132, 222] and parts.env.cfg.gait_feedforward == schedule.gain
 
 
 @pytest.mark.parametrize("run", ["oracle_h1_footholds", "oracle_h1_pit_rungs"])

@@ -2,8 +2,17 @@
 
 import mujoco
 import numpy as np
+import pytest
+import torch
 
-from legoh_rl.envs.sensors import quat_to_rotmat, scandot_offsets, scandots, yaw_from_quat
+from legoh_rl.envs.sensors import (
+    FOOT_SCAN_OFFSETS,
+    foot_scan,
+    quat_to_rotmat,
+    scandot_offsets,
+    scandots,
+    yaw_from_quat,
+)
 from legoh_rl.envs.trail_source import trails_for
 
 
@@ -37,3 +46,55 @@ def test_scandots_native_lookup_matches_the_plain_one():
     assert plain.shape == (16, 132) and plain.dtype == np.float32
     assert np.ptp(plain) > 0.1  # the points see terrain that varies
     np.testing.assert_allclose(fast, plain, atol=1e-5)
+
+
+def test_the_foot_scan_grid_is_9_by_5_at_5_cm_around_the_ankle():
+    assert FOOT_SCAN_OFFSETS.shape == (45, 2)
+    grid = FOOT_SCAN_OFFSETS.reshape(9, 5, 2)  # x-major: rows forward, columns left
+    np.testing.assert_allclose(grid[:, 0, 0], [-0.1, -0.05, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3], atol=1e-12)
+    np.testing.assert_allclose(grid[0, :, 1], [-0.1, -0.05, 0.0, 0.05, 0.1], atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["numpy", "torch"])
+def test_foot_scan_reads_the_sole_level_on_a_floor_and_a_pits_depth_at_its_points(kind):
+    """Hand-made feet over a floor at 0 with a pit of depth 0.3 at x > 1: the left foot heads +x,
+    its sole on the floor, its ankle 0.125 m short of the pit's edge, so grid rows 5-8 (0.15 m
+    forward and more) lie over the pit; the right foot heads +y (yaw 90 deg: its left is -x), its
+    ankle at x = 1.025 and 2 cm above standing height, so grid columns 0-2 (0 to 0.1 m to its right,
+    at x = 1.025-1.125) lie over the pit. A 1.5 m pit reads the clip, -1."""
+    rest = 0.065
+    pos = np.array([[[0.875, 0.3, rest], [1.025, -0.3, rest + 0.02]]])
+    half = np.sqrt(0.5)
+    quat = np.array([[[1.0, 0.0, 0.0, 0.0], [half, 0.0, 0.0, half]]])
+    xp = np if kind == "numpy" else torch
+    cast = np.asarray if kind == "numpy" else (lambda a: torch.as_tensor(a, dtype=torch.float64))
+
+    def pit(depth):
+        return lambda xy: xp.where(xy[:, 0] > 1.0, -depth, 0.0 * xy[:, 0])
+
+    def scan(height_fn):
+        out = foot_scan(cast(pos), cast(quat), cast(FOOT_SCAN_OFFSETS), height_fn, rest)
+        out = out.numpy() if kind == "torch" else out
+        assert out.shape == (1, 90)
+        return out.reshape(2, 9, 5)  # (foot, forward, left)
+
+    flat = scan(lambda xy: 0.0 * xy[:, 0])
+    np.testing.assert_array_equal(flat[0], 0.0)  # a standing sole on the floor
+    np.testing.assert_allclose(flat[1], -0.02, atol=1e-12)  # a sole 2 cm above it
+    left, right = scan(pit(0.3))
+    np.testing.assert_allclose(left[5:], -0.3, atol=1e-12)
+    np.testing.assert_array_equal(left[:5], 0.0)
+    np.testing.assert_allclose(right[:, :3], -0.32, atol=1e-12)
+    np.testing.assert_allclose(right[:, 3:], -0.02, atol=1e-12)
+    left, right = scan(pit(1.5))
+    np.testing.assert_array_equal(left[5:], -1.0)
+    np.testing.assert_array_equal(right[:, :3], -1.0)
+
+
+def test_yaw_from_quat_on_tensors_and_stacked_quaternions():
+    rng = np.random.default_rng(2)
+    q = rng.standard_normal((3, 2, 4))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    flat = yaw_from_quat(q.reshape(-1, 4)).reshape(3, 2)
+    np.testing.assert_allclose(yaw_from_quat(q), flat, atol=1e-12)
+    np.testing.assert_allclose(yaw_from_quat(torch.as_tensor(q)).numpy(), flat, atol=1e-12)

@@ -169,6 +169,30 @@ def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
     assert len(eval_run.evaluate(cfg)["episodes"]) == 1
 
 
+def test_student_of_a_foot_scan_teacher_gets_the_teachers_scandots(teacher, tmp_path):
+    """A teacher trained with env.foot_scan reads 222 scandot columns: its student's env (the
+    config names no foot scan) computes them for it, its labels and critic run on them, the
+    student checkpoint records the scan and its evaluation env is rebuilt with it. A student
+    config asking for the scan under a teacher without it gets the teacher's 132 columns."""
+    ck = tmp_path / "oracle"
+    oracle_ppo.train(cfg_of("oracle_ppo", ENV + ["collector.steps_per_env=8", "collector.total_frames=32",
+                                                 "ppo.num_epochs=1", f"checkpoint.dir={ck}", "env.foot_scan=true"]))
+    p = unified.build(tiny(ck / "last.pt", tmp_path / "student"))
+    assert p.env.cfg.foot_scan and p.meta["foot_scan"] is True and p.meta["obs_layout"]["scandots"] == (222,)
+    assert p.teacher.networks.cfg.scandots_dim == 222
+    td = p.env.reset()
+    assert p.teacher.label(td.select(*p.teacher.in_keys).copy())["action_tea"].shape == (4, p.env.A)
+    assert p.critic(td.clone())["state_value"].shape == (4, 1)
+    out = unified.train(tiny(ck / "last.pt", tmp_path / "student", "collector.total_frames=40"))
+    assert out["iteration"] == 1 and load_checkpoint(tmp_path / "student" / "last.pt")["meta"]["foot_scan"] is True
+    cfg = cfg_of("evaluate", [f"checkpoint={tmp_path / 'student' / 'last.pt'}", "categories=[randommix]", "levels=[0]",
+                              "robots_per_cell=1", "variants=1", "num_threads=1", f"output_dir={tmp_path / 'eval'}",
+                              "video=false", "logger.backend=csv"])
+    assert len(eval_run.evaluate(cfg)["episodes"]) == 1
+    plain = unified.build(tiny(teacher, tmp_path / "plain", "env.foot_scan=true"))
+    assert not plain.env.cfg.foot_scan and plain.env.observation_spec["scandots"].shape[-1] == 132
+
+
 def test_dagger_replay_trains_the_locomotion_on_the_aggregated_window(teacher, tmp_path):
     cfg = tiny(teacher, tmp_path, "dagger_iters=5", "dagger_replay.capacity=25", "dagger_replay.batch_size=8",
                "dagger_replay.steps=4")

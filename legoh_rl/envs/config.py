@@ -68,6 +68,11 @@ class HikingEnvConfig:
             benchmark's 0.1 m on level 0, 1.0 m above). A training schedule can put rungs between
             level 0's cracks and level 1's drops; the eval mode refuses it (the benchmark's
             terrain is fixed).
+        foot_scan: append the foot scan to ``scandots``: terrain heights relative to each foot's
+            sole at :data:`~legoh_rl.envs.sensors.FOOT_SCAN_OFFSETS` (45 points per foot, 0.05 m
+            apart, in the foot's yaw frame), so ``scandots`` grows from (132,) to (132 + 2 x 45,).
+            A privileged input of the oracle (the student reads no scandots; its env computes
+            them for its teacher). Not in the paper (docs/observations.md).
         depth: render the head depth camera (default: off in oracle mode, on otherwise).
         depth_camera: resolution (64x64 default; 128x128 paper), clipping, noise.
         perception_every: control steps per depth frame (5 = 10 Hz at 50 Hz control).
@@ -133,6 +138,7 @@ class HikingEnvConfig:
     levels: tuple[int, ...] = setting((0,), ListOf(Integer(0, NUM_LEVELS - 1)))
     variants: int = setting(2, Integer(1))
     pit_depths: tuple[float, ...] | None = setting(None, ListOf(Number(0, low_open=True), nullable=True))
+    foot_scan: bool = setting(False, Flag())
     depth: bool | None = setting(None, Flag(nullable=True))
     depth_camera: DepthCameraConfig = field(default_factory=DepthCameraConfig)
     perception_every: int = setting(5, Integer(1))

@@ -227,7 +227,7 @@ class HikingEnv(EnvBase):
             "proprio": Unbounded(shape=(N, 3 + 2 + 3 * A + 2 + (2 if self.cfg.gait_period else 0)), device=dev),
             "goal_gps": Unbounded(shape=(N, 2), device=dev),
             "waypoint_gps": Unbounded(shape=(N, 2), device=dev),
-            "scandots": Bounded(-1.0, 1.0, shape=(N, self.step_state.scandot_xy.shape[0]), device=dev),
+            "scandots": Bounded(-1.0, 1.0, shape=(N, self.step_state.scandots_width), device=dev),
             "privileged": Unbounded(shape=(N, P), device=dev),
             "expert_goals": Bounded(-1.0, 1.0, shape=(N, k, 2), device=dev),
             "perception_tick": Binary(n=1, shape=(N, 1), dtype=torch.bool, device=dev),

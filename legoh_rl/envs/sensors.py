@@ -40,6 +40,8 @@ __all__ = [
     "torch_height_fn",
     "scandot_offsets",
     "scandots",
+    "FOOT_SCAN_OFFSETS",
+    "foot_scan",
     "quat_to_rotmat",
     "yaw_from_quat",
     "roll_pitch_from_gravity",
@@ -411,16 +413,27 @@ def _ray_points(og: torch.Tensor, t: torch.Tensor, dg: torch.Tensor) -> torch.Te
     return g
 
 
+def _xy_grid(xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """The points of the grid ``xs`` (forward) x ``ys`` (left), x-major: (len(xs) * len(ys), 2)."""
+    xx, yy = np.meshgrid(xs, ys, indexing="ij")
+    return np.stack([xx.ravel(), yy.ravel()], axis=-1)
+
+
 def scandot_offsets() -> np.ndarray:
     """Scandot sample points in the base's yaw frame, (132, 2) m.
 
     12 x 11 grid (Extreme Parkour's layout): x in linspace(-0.45, 1.2, 12) (forward),
     y in linspace(-0.75, 0.75, 11) (left); x-major order.
     """
-    xs = np.linspace(-0.45, 1.2, 12)
-    ys = np.linspace(-0.75, 0.75, 11)
-    xx, yy = np.meshgrid(xs, ys, indexing="ij")
-    return np.stack([xx.ravel(), yy.ravel()], axis=-1)
+    return _xy_grid(np.linspace(-0.45, 1.2, 12), np.linspace(-0.75, 0.75, 11))
+
+
+#: Foot-scan sample points in a foot's yaw frame, (45, 2) m (``HikingEnvConfig.foot_scan``): a
+#: 9 x 5 grid at 0.05 m, x in [-0.10, 0.30] forward of the foot body's origin (the ankle; H1's
+#: sole spans about [-0.07, 0.17], G1's [-0.07, 0.14]), y in [-0.10, 0.10] (left); x-major. It
+#: covers the sole and ~0.13 m ahead of the toe, where a foot landing short of a stone sees the
+#: stone's edge; the scandots' 0.15 m spacing is coarser than that miss.
+FOOT_SCAN_OFFSETS = _xy_grid(np.linspace(-0.10, 0.30, 9), np.linspace(-0.10, 0.10, 5))
 
 
 def scandots(
@@ -458,6 +471,34 @@ def scandots(
     return np.clip(h - ground, -1.0, 1.0).astype(np.float32)
 
 
+def foot_scan(feet_pos, feet_quat, offsets, height_fn: Callable, foot_rest_height: float):
+    """Terrain heights around each foot, relative to its sole (numpy arrays or torch tensors).
+
+    ``foot_scan = clip(h(p) - (z_foot - foot_rest_height), -1, 1)`` at the points ``p`` of
+    ``offsets`` in each foot's yaw frame (the heading of the foot body): 0 on flat ground under a
+    standing foot, -d where the points lie over a pit of depth d, +s over a step of height s.
+
+    Args:
+        feet_pos: (n, 2, 3) world positions of the (left, right) foot bodies.
+        feet_quat: (n, 2, 4) their orientations (w, x, y, z).
+        offsets: (K, 2) sample points in a foot's yaw frame (:data:`FOOT_SCAN_OFFSETS`), of the
+            same kind as ``feet_pos``.
+        height_fn: surface height at world xy points, (M, 2) -> (M,), of the same kind.
+        foot_rest_height: height of a foot body's origin above the ground it stands on, m
+            (:class:`~legoh_rl.envs.robots.RobotSpec`).
+
+    Returns:
+        (n, 2K): the left foot's K heights, then the right's, in ``offsets``' order.
+    """
+    xp = namespace_of(feet_pos)
+    n, k = feet_pos.shape[0], offsets.shape[0]
+    yaw = xp.reshape(yaw_from_quat(feet_quat), (-1,))  # (2n,)
+    points = yaw_frame_points(xp.reshape(feet_pos[..., :2], (-1, 2)), yaw, offsets)  # (2n, K, 2)
+    h = xp.reshape(height_fn(xp.reshape(points, (-1, 2))), (n, 2, k))
+    sole = feet_pos[..., 2] - foot_rest_height  # (n, 2) the ground a standing foot would be on
+    return xp.reshape(xp.clip(h - sole[..., None], -1.0, 1.0), (n, 2 * k))
+
+
 def _quat_product_map() -> np.ndarray:
     """(16, 9) coefficients: vec(R) = vec(q q^T) @ map + vec(I) for a unit quaternion q = (w, x, y, z)."""
     w, x, y, z = range(4)
@@ -493,10 +534,12 @@ def quat_to_rotmat(q):
     return xp.reshape(outer @ products + eye, (-1, 3, 3))
 
 
-def yaw_from_quat(q: np.ndarray) -> np.ndarray:
-    """Heading (rotation about world z) of quaternions (w, x, y, z): (N, 4) -> (N,)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+def yaw_from_quat(q):
+    """Heading (rotation about world z) of quaternions (w, x, y, z): (..., 4) -> (...) (numpy
+    arrays or torch tensors)."""
+    xp = namespace_of(q)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return xp.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
 
 def roll_pitch_from_gravity(gravity_b):

@@ -21,6 +21,7 @@ The per-world state a subclass keeps (N worlds, A actions, G goals slots; arrays
   ``last_contact`` (N, 2) bool, ``feet_xy_prev`` (N, 2, 2), ``episode_step`` (N,) int, ``tick``
   (N,) bool, ``metrics`` (:class:`~legoh_rl.envs.metrics.EpisodeMetrics`);
 * constants ``q_default`` (A,), ``q_soft_limits`` (A, 2), ``hip_idx`` (H,) and ``scandot_xy`` (K, 2);
+  ``foot_scan_xy`` (K_f, 2) with ``cfg.foot_scan``;
 * ``cfg``, ``dt``, ``robot``, ``weights``, ``max_steps`` (the env's);
 
 and the lookups that differ by where the terrain and the camera live (:class:`StepQuantities`
@@ -50,6 +51,8 @@ class StepQuantities:
 
     * ``_scandots(pos, yaw)``: (N, K) terrain heights around bases at ``pos`` (N, 3) with headings
       ``yaw`` (N,), relative to the nominal ground, clipped to [-1, 1];
+    * ``_foot_scan(sel)``: (n, 2 K_f) terrain heights around the feet of worlds ``sel`` (a slice
+      or (n,) indices), relative to their soles, clipped to [-1, 1] (read with ``cfg.foot_scan``);
     * ``_pit_under(feet_xy)``: (N, 2) bool, each foot at ``feet_xy`` (N, 2, 2) over a pit;
     * ``_privileged_dr()``: (N, 5 + A) the randomised dynamics of the privileged observation;
     * ``_depth_rows(sel)``: the depth images of worlds ``sel`` (a slice or (n,) indices), or None;
@@ -207,11 +210,15 @@ class StepQuantities:
         # goal, waypoint and expert-goal directions rotated together: (N, 2 + k, 2)
         vecs = world_to_yaw_frame(xp.concat([s["goal_vec"][:, None], (self.waypoint[sel, :2] - s["pos"][:, :2])[:, None],
                                              s["goal_dirs_w"]], axis=1), yaw)
+        scan = self._scandots(s["pos"], yaw)
+        if self.cfg.foot_scan:  # the feet's own scan after the base's scandots
+            scan = xp.concat([xp.astype(scan, dtype, copy=False), xp.astype(self._foot_scan(sel), dtype, copy=False)],
+                             axis=1)
         obs = {
             "proprio": proprio,
             "goal_gps": vecs[:, 0],
             "waypoint_gps": vecs[:, 1],
-            "scandots": self._scandots(s["pos"], yaw),
+            "scandots": scan,
             "privileged": xp.concat([s["lin_vel_b"] * LIN_VEL_SCALE, self._privileged_dr()[sel]], axis=1),
             "expert_goals": vecs[:, 2:],
             "perception_tick": self.tick[sel, None],

@@ -42,7 +42,7 @@ from legoh_rl.envs.body_state import BodyStateReader
 from legoh_rl.envs.device_terrain import DeviceTerrain, HostTerrain
 from legoh_rl.envs.gait import swing_joints, swing_reference
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
-from legoh_rl.envs.sensors import scandot_offsets
+from legoh_rl.envs.sensors import FOOT_SCAN_OFFSETS, foot_scan, scandot_offsets
 from legoh_rl.envs.step_quantities import StepQuantities
 
 __all__ = ["StepState"]
@@ -76,7 +76,9 @@ class StepState(StepQuantities):
     ``feet_air_time`` (N, 2), ``last_contact`` (N, 2) bool, ``feet_xy_prev`` (N, 2, 2), ``tick``
     (N,) bool, ``metrics`` (:class:`EpisodeMetrics`), ``depth`` (N, 1, H, W) or None; and the
     constants ``q_default`` (A,) (``q_default64`` in float64), ``q_soft_limits`` (A, 2),
-    ``hip_idx``, ``scandot_xy`` (K, 2), ``tile_level``/``tile_category`` (T,).
+    ``hip_idx``, ``scandot_xy`` (K, 2), ``foot_scan_xy`` (K_f, 2) with ``cfg.foot_scan`` (else
+    None), ``tile_level``/``tile_category`` (T,); ``xquat`` (N, nbody, 4) is the simulation's live
+    body orientations.
     """
 
     def __init__(self, cfg, robot, built, trails, worlds, weights: dict, dt: float, max_steps: int,
@@ -107,6 +109,9 @@ class StepState(StepQuantities):
         self.q_soft_limits = self.from_host(self.q_soft_limits_host)
         self.hip_idx = self.from_host(built.hip_idx, np.int64)
         self.scandot_xy = self.from_host(scandot_offsets())
+        # the foot scan's points and the feet's orientations it reads (live arrays, as body.arrays)
+        self.foot_scan_xy = self.from_host(FOOT_SCAN_OFFSETS) if cfg.foot_scan else None
+        self.xquat = worlds.xquat if device is None else worlds.views["xquat"]
         self.tile_level = self.from_host(trails.tile_level, np.int64)
         self.tile_category = self.from_host(trails.tile_category, np.int64)
         self.goal_offsets = self.from_host(np.arange(cfg.num_goals), np.int64)
@@ -143,6 +148,12 @@ class StepState(StepQuantities):
                 isinstance(camera_depth, torch.Tensor) and camera_depth.device == torch.device(device)):
             self.depth = torch.ones(tuple(camera_depth.shape), dtype=torch.float32, device=device)
         self._obs: dict = {}  # the last observations, updated in place by partial resets
+
+    @property
+    def scandots_width(self) -> int:
+        """Columns of the ``scandots`` observation: K scandots, then 2 K_f foot-scan heights with
+        ``cfg.foot_scan``."""
+        return int(self.scandot_xy.shape[0]) + (0 if self.foot_scan_xy is None else 2 * int(self.foot_scan_xy.shape[0]))
 
     # ------------------------------------------------------------------ arrays
     def zeros(self, *shape: int, dtype=None):
@@ -325,6 +336,11 @@ class StepState(StepQuantities):
     # ------------------------------------------------------------------ lookups of StepQuantities
     def _scandots(self, pos, yaw):
         return self.terrain.scandots(pos, yaw, self.scandot_xy, self.robot.base_height_target)
+
+    def _foot_scan(self, sel):
+        feet = self.body.index["foot_bodies"]
+        return foot_scan(self.body.arrays["xpos"][sel][:, feet], self.xquat[sel][:, feet], self.foot_scan_xy,
+                         self.terrain.heights, self.robot.foot_rest_height)
 
     def _pit_under(self, feet_xy):
         xp = namespace_of(feet_xy)

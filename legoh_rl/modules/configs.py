@@ -356,7 +356,7 @@ class OracleConfig:
 
     Attributes:
         proprio_dim: D of ``proprio``. num_actions: A. privileged_dim: P of ``privileged``.
-        scandots_dim: size of ``scandots`` (132 = 12 x 11).
+        scandots_dim: size of ``scandots`` (132 = 12 x 11; 222 with the env's ``foot_scan``).
         num_goals: N rows of ``expert_goals`` (N, 2), flattened into the actor input.
         scandot_layers: scandot encoder widths; the last is ``z_tea`` 's size (32).
         priv_layers: privileged encoder widths; the last is ``priv_latent`` 's size (20).

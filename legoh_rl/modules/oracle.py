@@ -45,6 +45,7 @@ __all__ = [
     "make_oracle_networks",
     "oracle_network_class",
     "register_oracle_network",
+    "scandot_input_keys",
 ]
 
 
@@ -190,6 +191,29 @@ def make_oracle_networks(cfg: OracleConfig) -> nn.Module:
         raise ValueError(f"oracle network {cfg.network!r} ({type(networks).__qualname__}) lacks {missing}: "
                          f"an oracle network has {list(ORACLE_NETWORK_PARTS)} (see OracleNetworks)")
     return networks
+
+
+def scandot_input_keys(networks: nn.Module) -> list[str]:
+    """The state-dict keys of the weights that read ``scandots`` directly: the first
+    ``nn.Linear`` of the actor's ``scandot_encoder`` and of the critic's (``critic.scandot_encoder``,
+    where the network has one), each ``(out, S)`` with S the scandots' width. With
+    ``share_encoders`` the one module is named both ways, and both names are listed (a state dict
+    holds both). What a warm start onto wider scandots widens (``checkpoint.init_widen``).
+
+    Raises:
+        ValueError: an encoder with no ``nn.Linear`` (names the network's class).
+    """
+    encoders = [networks.scandot_encoder] + [e for e in (getattr(networks.critic, "scandot_encoder", None),)
+                                             if e is not None]
+    firsts = []
+    for encoder in encoders:
+        first = next((m for m in encoder.modules() if isinstance(m, nn.Linear)), None)
+        if first is None:
+            raise ValueError(f"{type(networks).__qualname__}: a scandot encoder without an nn.Linear "
+                             f"({type(encoder).__qualname__}): no first layer reads the scandots")
+        firsts.append(first)
+    return [f"{name}.weight" for name, module in networks.named_modules(remove_duplicate=False)
+            if any(module is first for first in firsts)]
 
 
 def make_oracle_actor(

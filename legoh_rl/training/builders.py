@@ -27,7 +27,7 @@ from legoh_rl.training.config_checks import (
 from legoh_rl.training.config_store import SET_BY_RECIPE, env_config, refuse_set_by_recipe
 
 __all__ = ["make_env", "eval_env", "oracle_config", "make_oracle", "oracle_networks", "policy_meta",
-           "gait_kwargs", "require_count", "require_layers", "TRAINING_SETTINGS",
+           "policy_env_kwargs", "require_count", "require_layers", "TRAINING_SETTINGS",
            "check_recipe_settings", "make_adam", "load_optimizer"]
 
 #: the settings both training recipes (``oracle_ppo.py``, ``unified.py``) share, by kind, but the
@@ -143,16 +143,17 @@ def make_env(cfg: Mapping, mode: str, trails=None, **overrides) -> HikingEnv:
 
 def eval_env(robot: str, protocol, variants: int, seed: int, num_threads=None, depth: bool = False,
              trails=None, device: torch.device | str = "cpu", physics: str = "mujoco", domain_rand: bool | tuple[str, ...] = False,
-             **gait) -> HikingEnv:
+             **policy_env) -> HikingEnv:
     """The eval-mode env of a protocol (all its categories, ``num_worlds`` worlds), its tensors on
     ``device``, its worlds stepped by ``physics`` (``mujoco`` | ``warp``), with the training's
-    randomisation when ``domain_rand`` (``HikingEnvConfig.eval_domain_rand``); ``gait``:
-    ``gait_period``/``gait_stance`` (and ``gait_amplitude``/``gait_feedforward``) of a policy
-    trained with a gait clock."""
+    randomisation when ``domain_rand`` (``HikingEnvConfig.eval_domain_rand``); ``policy_env``:
+    the env fields of the policy's checkpoint (:func:`policy_env_kwargs`: ``gait_period``/
+    ``gait_stance``, and ``gait_amplitude``/``gait_feedforward``, of a policy trained with a gait
+    clock; ``foot_scan``)."""
     cfg = HikingEnvConfig(robot=robot, num_envs=protocol.num_worlds, mode="eval", depth=depth,
                           categories=tuple(protocol.categories), levels=tuple(protocol.levels),
                           variants=variants, seed=seed, num_threads=num_threads, device=str(device), physics=physics,
-                          eval_domain_rand=domain_rand, **gait)
+                          eval_domain_rand=domain_rand, **policy_env)
     return HikingEnv(cfg, trails=trails)
 
 
@@ -192,9 +193,10 @@ def make_oracle(env: HikingEnv, init_std: float = 1.0, layers: tuple[int, ...] |
 
 def policy_meta(env: HikingEnv, kind: str) -> dict:
     """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind, and
-    the gait clock's period and stance fraction when the env has a clock, and its amplitude and
-    feedforward gain when the clock drives the PD targets (older checkpoints, made without them,
-    carry no such fields)."""
+    the gait clock's period and stance fraction when the env has a clock, its amplitude and
+    feedforward gain when the clock drives the PD targets, and ``foot_scan: True`` when the
+    scandots end with the feet's scan (older checkpoints, made without them, carry no such
+    fields). :func:`policy_env_kwargs` rebuilds those env settings from the meta block."""
     spec = env.observation_spec
     # a student's depth size (absent for a blind student, trained and evaluated without the camera)
     keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" and "depth" in spec.keys() else ())
@@ -204,10 +206,21 @@ def policy_meta(env: HikingEnv, kind: str) -> dict:
         meta.update(gait_period=env.cfg.gait_period, gait_stance=env.cfg.gait_stance)  # the policy's clock
     if env.cfg.gait_feedforward:  # the clock's swing is part of the policy's actions
         meta.update(gait_amplitude=env.cfg.gait_amplitude, gait_feedforward=env.cfg.gait_feedforward)
+    if env.cfg.foot_scan:  # the scandots' layout: 132 base dots, then the feet's scan
+        meta["foot_scan"] = True
     return meta
 
 
-def gait_kwargs(meta: Mapping) -> dict:
-    """The env config fields that rebuild a checkpoint's gait clock (empty without one)."""
-    keys = ("gait_period", "gait_stance", "gait_amplitude", "gait_feedforward")
-    return {k: float(meta[k]) for k in keys if k in meta}
+#: the gait clock's env config fields, as :func:`policy_meta` records them
+_GAIT_FIELDS = ("gait_period", "gait_stance", "gait_amplitude", "gait_feedforward")
+
+
+def policy_env_kwargs(meta: Mapping) -> dict:
+    """The env config fields that rebuild the env a checkpoint's policy was trained in, from its
+    meta block (:func:`policy_meta`): its gait clock's fields where it has a clock, and
+    ``foot_scan`` always (False for a checkpoint that records none: its scandots are the 132 base
+    dots). Evaluation, the ONNX loader and a student's env (its teacher's: they replace the
+    student config's own) are built with them."""
+    out: dict = {k: float(meta[k]) for k in _GAIT_FIELDS if k in meta}
+    out["foot_scan"] = bool(meta.get("foot_scan", False))
+    return out

@@ -41,7 +41,7 @@ import torch
 __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
     "CheckpointError", "CheckpointWriteError", "require_training_state", "load_weights", "file_digest",
-    "LEGACY_SAFE_GLOBALS", "WEIGHT_KEYS", "check_finite_weights",
+    "LEGACY_SAFE_GLOBALS", "WEIGHT_KEYS", "check_finite_weights", "widen_input_columns",
 ]
 
 #: The only globals :func:`load_checkpoint` allows beyond torch's weights-only set (tensors, plain
@@ -303,6 +303,47 @@ def load_weights(module: torch.nn.Module, weights: dict, path: str | os.PathLike
             [f"missing {missing[:3]}"] if missing else []) + ([f"unexpected {unexpected[:3]}"] if unexpected else [])
         raise CheckpointError(f"{path}: its {what} do not fit this run's ({'; '.join(parts)}); {hint}")
     module.load_state_dict(weights)
+
+
+def widen_input_columns(weights: dict, own: dict, keys, path: str | os.PathLike) -> tuple[dict, dict]:
+    """A checkpoint's state dict ``weights`` fitted to layers ``keys`` of this run (``own``, its
+    state dict) that read more input columns: each such weight ``(out, k_old)`` becomes
+    ``(out, k_new)``, its first ``k_old`` columns the checkpoint's and the ``k_new - k_old`` new
+    ones (inputs appended after the old ones) zero, so that the layer's output ignores the new
+    inputs and the network computes the checkpoint's function of the old ones. Every other entry
+    is kept as it is (:func:`load_weights` then checks the rest).
+
+    Args:
+        weights: the checkpoint's state dict (not modified).
+        own: this run's state dict (the shapes to fit; its values are not read).
+        keys: the weight names that may be widened (e.g.
+            :func:`~legoh_rl.modules.oracle.scandot_input_keys`).
+        path: the checkpoint, for the messages.
+
+    Returns:
+        ``(weights, widened)``: the fitted state dict (a new dict; widened tensors are new) and
+        ``{key: [old shape, new shape]}`` of each widened weight (plain lists: a meta block's).
+
+    Raises:
+        CheckpointError: one of ``keys`` missing from either side, with another number of rows,
+            or with fewer columns in this run than in the checkpoint (names the key and both shapes).
+    """
+    out, widened = dict(weights), {}
+    for key in keys:
+        if key not in weights or key not in own:
+            raise CheckpointError(f"{path}: cannot widen {key}: {'the checkpoint' if key not in weights else 'this run'} "
+                                  "has no such weight")
+        old, new = weights[key], own[key]
+        if tuple(old.shape) == tuple(new.shape):
+            continue
+        if old.ndim != 2 or new.ndim != 2 or old.shape[0] != new.shape[0] or old.shape[1] > new.shape[1]:
+            raise CheckpointError(f"{path}: cannot widen {key} from the checkpoint's {tuple(old.shape)} to this run's "
+                                  f"{tuple(new.shape)}: widening adds input columns (same rows, more columns) only")
+        wide = torch.zeros(tuple(new.shape), dtype=old.dtype)
+        wide[:, : old.shape[1]] = old  # the new columns stay zero: the layer ignores the new inputs
+        out[key] = wide
+        widened[key] = [list(old.shape), list(new.shape)]
+    return out, widened
 
 
 def check_meta(meta: dict, expected: dict, path: str | os.PathLike = "checkpoint") -> None:

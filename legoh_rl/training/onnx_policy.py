@@ -33,7 +33,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Unbounded
 from torchrl.envs import TensorDictPrimer
 
-from legoh_rl.training.builders import eval_env, gait_kwargs, policy_meta
+from legoh_rl.training.builders import eval_env, policy_env_kwargs, policy_meta
 from legoh_rl.training.checkpoint import check_meta
 from legoh_rl.training.onnx_export import (
     PREFIX,
@@ -202,7 +202,7 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
         module = OnnxModule(files["oracle"], threads)
         meta = module.info["meta"]
         env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, physics=physics,
-                       domain_rand=domain_rand, **gait_kwargs(meta))
+                       domain_rand=domain_rand, **policy_env_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), files["oracle"])
         return env, module, "oracle (onnx)"
     perception = OnnxModule(files["perception"], threads)
@@ -211,7 +211,7 @@ def load_onnx_policy(checkpoint: str | os.PathLike, protocol, variants: int = 2,
     if locomotion.info["meta"] != meta:
         raise DeployError(f"{files['perception']} and {files['locomotion']} come from different checkpoints")
     base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth="depth" in meta["obs_layout"],
-                    trails=trails, physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
+                    trails=trails, physics=physics, domain_rand=domain_rand, **policy_env_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]},
                files["perception"])
     keys = hold_keys(perception)  # a frozen-oracle (RMA) student's perception also gives priv_latent_uni

@@ -12,7 +12,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
 from legoh_rl.modules.oracle import make_oracle_actor
-from legoh_rl.training.builders import eval_env, gait_kwargs, oracle_networks, policy_meta
+from legoh_rl.training.builders import eval_env, oracle_networks, policy_env_kwargs, policy_meta
 from legoh_rl.training.checkpoint import check_meta, load_checkpoint
 from legoh_rl.training.evaluation import EvalProtocol
 from legoh_rl.training.onnx_policy import load_onnx_policy
@@ -42,7 +42,7 @@ def load_student(state: dict, protocol, variants: int, seed: int, num_threads=No
     meta = state["meta"]
     blind = "depth" not in meta["obs_layout"]  # RMA-B: trained without the camera, evaluated without it
     base = eval_env(meta["robot"], protocol, variants, seed, num_threads, depth=not blind, trails=trails, device=device,
-                    physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
+                    physics=physics, domain_rand=domain_rand, **policy_env_kwargs(meta))
     check_meta(meta, {**policy_meta(base, "student"), "perception": meta["perception"], "preset": meta["preset"]}, path)
     student = make_student(base, meta["perception"], meta["preset"], oracle_config=meta.get("oracle_config"),
                            network=locomotion_network(meta))
@@ -81,7 +81,7 @@ def load_policy(checkpoint: str, protocol, robot: str = "h1", variants: int = 2,
     kind = meta.get("kind")
     if kind == "oracle":
         env = eval_env(meta["robot"], protocol, variants, seed, num_threads, trails=trails, device=device,
-                       physics=physics, domain_rand=domain_rand, **gait_kwargs(meta))
+                       physics=physics, domain_rand=domain_rand, **policy_env_kwargs(meta))
         check_meta(meta, policy_meta(env, "oracle"), checkpoint)
         return env, make_oracle_actor(oracle_networks(state).to(device)), "oracle"
     if kind == "student":
