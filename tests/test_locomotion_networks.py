@@ -107,9 +107,11 @@ def test_the_default_is_the_papers_network_and_checkpoints_without_a_name_load_a
     assert type(built.module[0].module) is LocomotionNet
     assert all(torch.equal(a, b) for a, b in
                zip(built.module[0].module.state_dict().values(), paper.state_dict().values(), strict=True))
-    for robot in ("h1", "g1"):
-        state = load_checkpoint(ROOT / "checkpoints" / f"student_{robot}.pt")
-        assert "locomotion_network" not in state["meta"] and locomotion_network(state["meta"]) == "mlp"
+    # checkpoints from before runs recorded the network, and one that records it
+    for name, recorded in (("ablations/h1_lego_h_seed0.pt", False), ("student_g1.pt", False), ("student_h1.pt", True)):
+        state = load_checkpoint(ROOT / "checkpoints" / name)
+        assert ("locomotion_network" in state["meta"]) is recorded, name
+        assert locomotion_network(state["meta"]) == "mlp"
         _, actor, _ = student_modules(state["meta"])
         actor.load_state_dict(state["actor"])  # strict
         assert type(actor.module[0].module) is LocomotionNet
