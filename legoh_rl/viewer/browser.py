@@ -19,6 +19,7 @@ import itertools
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -102,7 +103,8 @@ class HeadlessChromium:
         self._process = subprocess.Popen(
             [find_chromium(binary), *_FLAGS, f"--user-data-dir={self._profile.name}",
              f"--window-size={self.width},{self.height}", url],
-            stdout=self._log, stderr=subprocess.STDOUT)
+            stdout=self._log, stderr=subprocess.STDOUT,
+            start_new_session=True)  # its own process group: close() stops its helper processes too
         self._ids = itertools.count(1)
         self._ws = None
         try:
@@ -215,9 +217,19 @@ class HeadlessChromium:
             except subprocess.TimeoutExpired:
                 self._process.kill()
                 self._process.wait()
+        try:  # Chromium's helpers (crashpad, utility processes) can outlive it and still write the profile
+            os.killpg(self._process.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
         if not self._log.closed:
             self._log.close()
-        self._profile.cleanup()
+        for _ in range(10):  # a helper being reaped may write one last file while the profile is removed
+            try:
+                self._profile.cleanup()
+                return
+            except OSError:
+                time.sleep(0.2)
+        shutil.rmtree(self._profile.name, ignore_errors=True)
 
     def __enter__(self) -> HeadlessChromium:
         return self
