@@ -8,15 +8,16 @@ Each training rate is printed as env steps/s and as a ratio to its env alone (sa
 and threads):
 
 * (a) the env alone under random actions: oracle mode with the oracle recipe's worlds (256, all
-  physics threads), and the student env of each ``--students`` experiment (its worlds,
+  physics threads, the foot scan), and the student env of each ``--students`` experiment (its worlds,
   categories, levels and ``env.num_threads``, depth on); measured before and after the training
   runs, and averaged, so drifting machine load hits both sides;
-* (b) oracle training, ``recipes/oracle_ppo.py experiment=oracle_h1_footholds`` (256 worlds on
+* (b) oracle training, ``recipes/oracle_ppo.py experiment=oracle_h1_foot_scan`` started afresh
+  (``checkpoint.init=null``, no feedforward anneal; 256 worlds on
   the whole benchmark, [256, 128, 64] MLPs, 5 epochs x 4 minibatches), once per
   ``--oracle-update-threads`` count (torch threads of the PPO update; collection keeps 1) and
   per ``--oracle-settings`` entry (extra overrides, space-separated; ``""``: the experiment as
-  it is), the whole set ``--repeats`` times in turn (A B A B: drifting load hits every setting
-  alike); a row per count and setting, its rate over all its runs;
+  it is; an entry that sets ``update_threads`` itself keeps its own), the whole set
+  ``--repeats`` times in turn (A B A B: drifting load hits every setting alike); a row per count and setting, its rate over all its runs;
 * (c) student training, ``recipes/unified.py experiment=<name>`` for each ``--students``
   experiment, with ``checkpoints/oracle_h1.pt`` as the teacher: the DAgger phase as it runs once
   the teacher's share has decayed (the student acts, the teacher labels: ``dagger_decay_iters=1``),
@@ -76,9 +77,14 @@ def env_rate(cfg: HikingEnvConfig, steps: int) -> float:
 
 
 def timed_frames(run_dir: Path) -> tuple[int, float]:
-    """(env steps, seconds of collection + update) of a run's metrics, its first iteration left out."""
+    """(env steps, seconds) of a run's metrics, its first iteration left out: each iteration's
+    ``train/iteration_s`` (from one batch in hand to the next) where the run logged it, else its
+    collection + update seconds. With ``collector.overlap`` the two overlap, so only the former
+    counts them right."""
     rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-    return rows[-1]["step"] - rows[0]["step"], sum(r["train/collect_s"] + r["train/update_s"] for r in rows[1:])
+    return rows[-1]["step"] - rows[0]["step"], sum(
+        r["train/iteration_s"] if "train/iteration_s" in r else r["train/collect_s"] + r["train/update_s"]
+        for r in rows[1:])
 
 
 def training_rate(run_dir: Path) -> tuple[float, int]:
@@ -101,7 +107,8 @@ def alone_rates(args) -> dict[str, float]:
     rates = {}
     if not args.skip_oracle:
         torch.set_num_threads(1)  # the oracle recipe's collection (torch_threads=1; physics on all cores)
-        rates["oracle"] = env_rate(HikingEnvConfig(num_envs=256, levels=(0, 1, 2, 3, 4), variants=8), args.env_steps)
+        rates["oracle"] = env_rate(HikingEnvConfig(num_envs=256, levels=(0, 1, 2, 3, 4), variants=8, foot_scan=True),
+                                   args.env_steps)
     for name in [] if args.skip_student else args.students:
         cfg, env_cfg = student_env(name)
         torch.set_num_threads(int(cfg.torch_threads))
@@ -139,15 +146,17 @@ def main() -> None:
             for n, (k, setting) in enumerate(variants):
                 run = Path(tmp) / f"oracle{k}-{n}-{rep}"
                 frames = 256 * 24 * (args.oracle_iters + 1)
-                oracle_ppo.train(compose_cfg("oracle_ppo", ["experiment=oracle_h1_footholds", f"checkpoint.dir={run}",
-                                                            "checkpoint.init=null", f"collector.total_frames={frames}",
-                                                            f"update_threads={k}", "logger.backend=csv",
-                                                            *setting.split()]))
+                oracle_ppo.train(compose_cfg("oracle_ppo", ["experiment=oracle_h1_foot_scan", f"checkpoint.dir={run}",
+                                                            "checkpoint.init=null", "checkpoint.init_widen=false",
+                                                            "feedforward_anneal=null", f"collector.total_frames={frames}",
+                                                            *([] if "update_threads=" in setting else [f"update_threads={k}"]),
+                                                            "logger.backend=csv", *setting.split()]))
                 timed.setdefault((k, setting), []).append(timed_frames(run))
         for (k, setting), runs in timed.items():
             frames, seconds = map(sum, zip(*runs, strict=True))
             each = " / ".join(f"{f / s:,.0f}" for f, s in runs)
-            rows.append((f"(b) oracle training, 256 worlds, whole benchmark, update on {k} thread(s)"
+            threads = "" if "update_threads=" in setting else f", update on {k} thread(s)"
+            rows.append((f"(b) oracle training, 256 worlds, whole benchmark{threads}"
                          + (f", `{setting}`" if setting else "") + (f" (runs: {each})" if len(runs) > 1 else ""),
                          "oracle", frames / seconds, len(runs) * args.oracle_iters))
         for name in [] if args.skip_student else args.students:

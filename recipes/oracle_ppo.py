@@ -25,6 +25,7 @@ import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when 
 
 # isort: split
 import math
+from collections import deque
 from pathlib import Path
 
 import hydra
@@ -250,7 +251,8 @@ def init_networks(networks, env, path: str, widen: bool = False) -> dict:
     return record
 
 
-def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[str, float]:
+def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig,
+               generator: torch.Generator | None = None) -> dict[str, float]:
     """Epochs x mini-batches of clipped PPO on one collected ``[N, T]`` batch; returns mean diagnostics.
 
     GAE writes ``advantage``, ``value_target`` and ``state_value`` into ``data``; the minibatches
@@ -270,7 +272,9 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
       minibatch leaves the rate as it is: no step has been taken on the batch yet, so its KL is
       the rollout policy's to itself (~0, which would raise the rate every update).
 
-    ``train/kl`` is the mean of the KLs that moved the learning rate.
+    ``train/kl`` is the mean of the KLs that moved the learning rate. ``generator``: what draws the
+    minibatches (``None``: torch's global generator; ``collector.overlap`` gives the update its own,
+    since the collecting thread draws the actions from the global one meanwhile).
     """
     kl_measure = cfg.get("kl_measure") or "after_step"
     if kl_measure not in KL_MEASURES:
@@ -282,7 +286,7 @@ def ppo_update(data, loss, gae, optim, sched, actor, cfg: DictConfig) -> dict[st
     count = kl_count = 0
     kl_sum, lr = 0.0, sched.lr
     for _ in range(cfg.ppo.num_epochs):
-        for idx in torch.randperm(flat.shape[0]).chunk(cfg.ppo.num_minibatches):
+        for idx in torch.randperm(flat.shape[0], generator=generator).chunk(cfg.ppo.num_minibatches):
             mb = flat[idx]
             out = loss(mb)
             if kl_measure == "loss_forward" and count > 0:  # the parameters after the previous step
@@ -315,6 +319,7 @@ class OracleTrainer(Trainer):
 
     desc = "oracle PPO"
     collector_kwargs = {"auto_register_policy_transforms": False}  # the oracle is stateless
+    overlap_ready = True  # with collector.overlap the update draws its minibatches from its own generator
 
     def __init__(self, cfg: DictConfig, env, networks, actor, loss, gae, optim, sched) -> None:
         self.cfg, self.env, self.collect_env, self.behaviour, self.device = cfg, env, env, actor, env.device
@@ -322,6 +327,10 @@ class OracleTrainer(Trainer):
         self.update_threads = int(cfg.torch_threads if cfg.get("update_threads") is None else cfg.update_threads)
         self.feedforward: FeedforwardSchedule | None = None  # None: the env's gain stays (build sets it)
         self.lineage: dict = {}  # the widening of checkpoint.init's networks, if any (build sets it)
+        # collector.overlap: the minibatch draws' own generator (checkpointed as "minibatch_rng")
+        self.generator = (torch.Generator().manual_seed(int(cfg.env.seed))
+                          if cfg.collector.get("overlap", False) else None)
+        self.gains: deque[float] = deque()  # the gains of the batches collected and not yet updated on
 
     @property
     def meta(self) -> dict:
@@ -331,6 +340,7 @@ class OracleTrainer(Trainer):
 
     def before_collect(self) -> None:
         set_feedforward(self.env, self.feedforward, self.frames)
+        self.gains.append(self.env.cfg.gait_feedforward)
 
     def sync_workers(self, workers, first: bool) -> None:
         """The feedforward gain of the next batch, in every worker's env."""
@@ -338,8 +348,10 @@ class OracleTrainer(Trainer):
 
     def update(self, data) -> dict[str, float]:
         with torch_threads(self.update_threads):  # the physics threads are idle during the update
-            stats = ppo_update(data, self.loss, self.gae, self.optim, self.sched, self.actor, self.cfg)
-        stats["train/gait_feedforward"] = self.env.cfg.gait_feedforward  # the gain the batch was collected with
+            stats = ppo_update(data, self.loss, self.gae, self.optim, self.sched, self.actor, self.cfg,
+                               self.generator)
+        # the gain the batch was collected with (collector.overlap has set the next batch's already)
+        stats["train/gait_feedforward"] = self.gains.popleft() if self.gains else self.env.cfg.gait_feedforward
         return stats
 
     def state_dict(self) -> dict:
@@ -347,7 +359,8 @@ class OracleTrainer(Trainer):
                 "networks": self.networks.state_dict(), "oracle_config": self.networks.cfg.__dict__,
                 "optim": self.optim.state_dict(), "sched": self.sched.state_dict(),
                 # what a resume or a later stage with feedforward_anneal=inherit goes on with
-                RECORD_KEY: (self.feedforward or FeedforwardSchedule(self.env.cfg.gait_feedforward)).record()}
+                RECORD_KEY: (self.feedforward or FeedforwardSchedule(self.env.cfg.gait_feedforward)).record(),
+                **({} if self.generator is None else {"minibatch_rng": self.generator.get_state()})}
 
     def postfix(self, stats: dict) -> dict[str, str]:
         return {"reward": f"{stats['reward/total']:.3f}", "level": f"{stats['curriculum/mean_level']:.2f}",
@@ -401,6 +414,8 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
         if not cfg.checkpoint.get("keep_curriculum", True):  # a new stage: worlds start again on env.levels
             env.curriculum.levels[:] = levels
         set_rng_state(state["rng"])
+        if trainer.generator is not None and "minibatch_rng" in state:  # else: a run that did not overlap, seeded afresh
+            trainer.generator.set_state(state["minibatch_rng"])
         trainer.iteration, trainer.frames, trainer.run_id = state["iteration"], state["frames"], state.get("run_id")
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
     return trainer

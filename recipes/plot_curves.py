@@ -92,7 +92,9 @@ def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[float]]:
 
 def training_hours(rows: list[dict]) -> list[float]:
     """Hours of training up to and including each row (one row per iteration): the running sum of
-    the iterations' ``train/collect_s`` + ``train/update_s``, start-ups not counted. A row logged
+    the iterations' ``train/iteration_s`` (from one batch in hand to the next: with
+    ``collector.overlap`` collection and update overlap), or of their ``train/collect_s`` +
+    ``train/update_s`` for rows logged before it existed; start-ups not counted. A row logged
     before ``train/collect_s`` existed counts its frames over the run's rate at that row
     (``train/fps_total``, the mean since its session started).
 
@@ -101,7 +103,9 @@ def training_hours(rows: list[dict]) -> list[float]:
     """
     out, total = [], 0.0
     for i, r in enumerate(rows):
-        if r.get("train/collect_s") is not None and r.get("train/update_s") is not None:
+        if r.get("train/iteration_s") is not None:
+            total += float(r["train/iteration_s"])
+        elif r.get("train/collect_s") is not None and r.get("train/update_s") is not None:
             total += float(r["train/collect_s"]) + float(r["train/update_s"])
         elif r.get("train/fps_total"):
             batch = (r["step"] - rows[i - 1]["step"] if i > 0

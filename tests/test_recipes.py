@@ -314,6 +314,10 @@ def test_plot_curves_against_training_hours(tmp_path, monkeypatch):
     # rows from before collect_s was logged: the iteration's frames over the run's rate then
     older = [{"step": 3600, "train/fps_total": 1.0}, {"step": 7200, "train/fps_total": 2.0}]
     assert plot_curves.training_hours(older) == [1.0, 1.5]
+    # an overlapped run (collector.overlap) collects during its update: its iteration seconds count, not the sum
+    overlapped = [{"step": 10, "train/collect_s": 1800.0, "train/update_s": 1800.0, "train/iteration_s": 1800.0},
+                  {"step": 20, "train/collect_s": 900.0, "train/update_s": 1800.0, "train/iteration_s": 3600.0}]
+    assert plot_curves.training_hours(overlapped) == [0.5, 1.5]
 
 
 def test_plot_curves_marks_a_panel_the_run_did_not_log(tmp_path, monkeypatch):

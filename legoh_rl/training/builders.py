@@ -41,6 +41,7 @@ TRAINING_SETTINGS = {
     "collector.total_frames": Integer(1),
     "collector.workers": Integer(1),
     "collector.allow_new_workers": Flag(),
+    "collector.overlap": Flag(),
     "logger.backend": Choice(("wandb", "csv")),
     "logger.online": Flag(),
     "logger.project": Name(),

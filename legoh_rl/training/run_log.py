@@ -51,18 +51,34 @@ class RunLog:
         self.start = time.perf_counter()
         self._env_time: dict[str, float] = {}  # the env's time_spent at the last log
 
-    def log(self, iteration: int, frames: int, data: TensorDictBase, env, stats: dict) -> dict:
-        """Add reward-term, episode, curriculum and env figures to ``stats``; queue them when due."""
+    def log(self, iteration: int, frames: int, data: TensorDictBase, env, stats: dict,
+            figures: dict | None = None) -> dict:
+        """Add reward-term, episode, curriculum and env figures to ``stats``; queue them when due.
+
+        ``figures``: the env's figures taken earlier (:meth:`env_figures`), for a loop that
+        collects the next batch while this one is logged (``collector.overlap``); ``None``: read
+        ``env`` now.
+        """
         stats.update(reward_term_stats(data))
         stats.update(episode_stats(data))
         stats.update(return_stats(data))
         stats.update(ending_stats(data))
-        categories = tuple(env.trails.categories)
-        stats.update(split_episode_stats(data, categories))
-        stats.update(curriculum_stats(env.curriculum.levels, env.world_category, categories))
+        stats.update(split_episode_stats(data, tuple(env.trails.categories)))
+        stats.update(self.env_figures(env) if figures is None else figures)
         stats.update({
             "train/frames": frames,
             "train/fps_total": (frames - self.start_frames) / (time.perf_counter() - self.start),
+        })
+        if iteration % self.every == 0:
+            self.pending.append((frames, dict(stats)))
+        return stats
+
+    def env_figures(self, env) -> dict:
+        """The figures read from the env's state: curriculum levels per category, the counters and
+        the seconds the env spent since the last call (``env/<part>_s``)."""
+        categories = tuple(env.trails.categories)
+        figures = curriculum_stats(env.curriculum.levels, env.world_category, categories)
+        figures.update({
             "curriculum/mean_level": float(env.curriculum.levels.mean()),
             "env/diverged_total": env.diverged_total,
             "env/bad_action_total": env.bad_action_total,
@@ -70,10 +86,8 @@ class RunLog:
             "env/global_steps": env.global_steps,
             "env/action_delay_steps": env.randomizer.delay_steps(env.global_steps),
         })
-        stats.update(self._env_seconds(env))
-        if iteration % self.every == 0:
-            self.pending.append((frames, dict(stats)))
-        return stats
+        figures.update(self._env_seconds(env))
+        return figures
 
     def _env_seconds(self, env) -> dict:
         """``env/<part>_s``: seconds the env spent in ``step``, its physics and resets since the

@@ -15,6 +15,10 @@ once:
   ``collector.backend=ray``, torchrl's :class:`~torchrl.collectors.distributed.RayCollector` over K
   Ray actors, on this machine or a cluster's nodes, with the same slices and the same mirroring
   (:mod:`legoh_rl.training.ray_collection`);
+* with ``collector.overlap=true`` (one process), the next batch is collected in a thread, by a
+  copy of the policy as it was before the update, while the update runs on the current one
+  (:func:`_overlapped_loop`): iterations where a checkpoint, snapshot or video is due collect
+  the next batch after it instead, so every checkpoint is taken between batches;
 * the run's config records the device it computes on (``device``, resolved from ``auto``:
   :func:`~legoh_rl.training.device.resolve_device`);
 * every ``checkpoint.every`` iterations, and at the end, ``last.pt`` is written atomically with
@@ -44,6 +48,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf, open_dict
+from tensordict import TensorDict
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import ExplorationType
@@ -53,13 +58,14 @@ from legoh_rl.training import ray_collection  # works without Ray (an optional e
 from legoh_rl.training.checkpoint import CheckpointError, export_policy, rng_state, save_checkpoint
 from legoh_rl.training.device import resolve_device
 from legoh_rl.training.interrupt import GracefulStop
+from legoh_rl.training.prefetch import Prefetch, next_batch, thread_local_sampling_mode
 from legoh_rl.training.run_dir import open_run_dir
 from legoh_rl.training.run_log import RunLog
 from legoh_rl.training.videos import policy_video
 from legoh_rl.training.weight_average import PolicyAverage
 from legoh_rl.training.workers import WorkerEnvs, check_workers, make_worker_collector
 
-__all__ = ["Trainer", "train", "provenance", "finish", "collector_workers", "collector_backend"]
+__all__ = ["Trainer", "train", "provenance", "finish", "collector_workers", "collector_backend", "collector_overlap"]
 
 
 class Trainer(ABC):
@@ -95,6 +101,21 @@ class Trainer(ABC):
     device: torch.device = torch.device("cpu")
     env_wrap: Callable | None = None
     average: PolicyAverage | None = None
+
+    #: whether ``collector.overlap`` may collect this trainer's next batch during its update: the
+    #: update draws no random numbers from torch's global generator (the collecting thread's), and
+    #: :meth:`overlap_policy` gives a policy the update does not touch
+    overlap_ready: bool = False
+
+    def overlap_policy(self) -> torch.nn.Module:
+        """``collector.overlap``: the module the collector runs, a copy of :attr:`behaviour` that
+        :meth:`refresh_overlap_policy` brings up to date between batches."""
+        return copy.deepcopy(self.behaviour)
+
+    def refresh_overlap_policy(self, policy: torch.nn.Module) -> None:
+        """Copy :attr:`behaviour`'s parameters and buffers into ``policy`` (in place: the collector
+        holds it) and any setting :meth:`before_collect` gave the behaviour."""
+        TensorDict.from_module(policy).data.update_(TensorDict.from_module(self.behaviour).data)
 
     def before_collect(self) -> None:  # noqa: B027 (optional hook: most trainers have no schedule)
         """Set what the next batch is collected with (schedules over ``frames`` / ``iteration``)."""
@@ -133,6 +154,7 @@ def train(cfg: DictConfig, validate: Callable[[DictConfig], None], build: Callab
         checkpoint, ``interrupted`` (the signal number).
     """
     validate(cfg)
+    collector_overlap(cfg)  # before any work: the settings it needs
     snapshots = cfg.checkpoint.get("snapshot_every", 0)
     if snapshots is not None and (isinstance(snapshots, bool) or not isinstance(snapshots, int) or snapshots < 0):
         raise ValueError(f"checkpoint.snapshot_every must be an integer >= 0 (iterations; 0: none), got {snapshots!r}")
@@ -154,79 +176,178 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
     if remaining < frames_per_batch:
         print(f"nothing left to train: {t.frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": t.iteration, "frames": t.frames}
+    overlap = collector_overlap(cfg, t)
     t.before_collect()
     threads = torch.get_num_threads()
-    collector, pool = _collector(cfg, t, frames_per_batch, remaining, reseed)
-
-    def checkpoint() -> Path:
-        path = save_checkpoint(ckpt_dir / "last.pt", {
-            "meta": {**t.meta, **provenance(cfg)}, **t.state_dict(), "env": t.env.state_dict(), "rng": rng_state(),
-            "iteration": t.iteration, "frames": t.frames, "run_id": run.run_id,
-            "config": OmegaConf.to_container(cfg, resolve=True),
-        })
-        run.flush()  # the logs hold what the checkpoint covers
-        return path
-
-    video_every = int(cfg.logger.get("video_every") or 0)  # 0: no training videos
-    snapshot_every = int(cfg.checkpoint.get("snapshot_every") or 0)  # 0: none
-    summary: dict = {}
+    policy = t.overlap_policy() if overlap else None
+    collector, pool = _collector(cfg, t, frames_per_batch, remaining, reseed, policy)
+    ends = _IterationEnds(cfg, t, run, ckpt_dir)
     bar = tqdm(total=remaining, unit="frames", desc=t.desc)
-    collected = time.perf_counter()
     try:
-        for data in collector:
-            data = data.copy()  # a new structure over the same tensors: the update's new keys stay out of the buffer
-            if pool is not None:
-                pool.pull()  # the workers' curriculum and counters, for the logs and the checkpoint
-            started = time.perf_counter()
-            collect_s = started - collected
-            stats = t.update(data)
-            if t.average is not None:  # reads the trained weights only: training is unchanged
-                t.average.update()
-            collector.update_policy_weights_()  # Ray: the trained policy's weights, sent to every worker
-            t.iteration += 1
-            t.frames += data.numel()
-            bar.update(data.numel())
-            stats["train/update_s"] = time.perf_counter() - started
-            stats["train/collect_s"] = collect_s
-            t.before_collect()  # before the checkpoint, so that it holds the settings its resume collects with
-            if pool is not None:
-                t.sync_workers(pool, first=False)
-            stats = run.log(t.iteration, t.frames, data, t.env, stats)
-            bar.set_postfix(t.postfix(stats))
-            if t.iteration % cfg.checkpoint.every == 0:
-                checkpoint()
-            if snapshot_every and t.iteration % snapshot_every == 0:  # the policy as it was, for later evaluation
-                if t.iteration % cfg.checkpoint.every:
-                    checkpoint()
-                name = f"frames{t.frames:09d}.pt"
-                export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / name)
-                if t.average is not None:
-                    export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / "ema" / name,
-                                  provenance={"weights": f"ema {t.average.decay}"}, weights=t.average.policy_state())
-            if video_every and t.iteration % video_every == 0:
-                path = checkpoint() if t.iteration % cfg.checkpoint.every else ckpt_dir / "last.pt"
-                run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",
-                                       t.env.trails.categories, int(np.median(t.env.curriculum.levels)),
-                                       seconds=float(cfg.logger.get("video_seconds", 4.0))), t.frames)
-            summary = {"iteration": t.iteration, "frames": t.frames, **stats}
-            collected = time.perf_counter()
-            if stop.signum is not None:
-                summary["interrupted"] = stop.signum
-                break
+        if overlap:
+            summary = _overlapped_loop(t, collector, policy, ends, bar, stop)
+        else:
+            summary = _sequential_loop(t, collector, pool, ends, bar, stop)
     finally:
         bar.close()
         collector.shutdown()
         torch.set_num_threads(threads)  # torchrl's multi-process collector changes the main process's count
-    summary["checkpoint"] = str(checkpoint())
+    summary["checkpoint"] = str(ends.checkpoint())
     run.close()
     return summary
 
 
-def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames: int, reseed: bool | None):
+class _IterationEnds:
+    """What ends every iteration of either loop: the log row, and when due the checkpoint, the
+    policy snapshot and the video."""
+
+    def __init__(self, cfg: DictConfig, t: Trainer, run: RunLog, ckpt_dir: Path) -> None:
+        self.cfg, self.t, self.run, self.dir = cfg, t, run, ckpt_dir
+        self.video_every = int(cfg.logger.get("video_every") or 0)  # 0: no training videos
+        self.snapshot_every = int(cfg.checkpoint.get("snapshot_every") or 0)  # 0: none
+        self.every = int(cfg.checkpoint.every)
+
+    def checkpoint(self) -> Path:
+        t, cfg = self.t, self.cfg
+        path = save_checkpoint(self.dir / "last.pt", {
+            "meta": {**t.meta, **provenance(cfg)}, **t.state_dict(), "env": t.env.state_dict(), "rng": rng_state(),
+            "iteration": t.iteration, "frames": t.frames, "run_id": self.run.run_id,
+            "config": OmegaConf.to_container(cfg, resolve=True),
+        })
+        self.run.flush()  # the logs hold what the checkpoint covers
+        return path
+
+    def due(self, iteration: int) -> bool:
+        """Whether iteration ``iteration``'s end writes anything from the run's state (checkpoint,
+        snapshot or video): the overlapped loop collects nothing beside such an iteration's update."""
+        return any(every and iteration % every == 0 for every in (self.every, self.snapshot_every, self.video_every))
+
+    def close(self, data, stats: dict, figures: dict | None = None) -> dict:
+        """Log the iteration ``t.iteration`` just ended (``figures``: the env's, taken earlier),
+        then write what is due; returns the logged figures."""
+        t, ckpt_dir = self.t, self.dir
+        stats = self.run.log(t.iteration, t.frames, data, t.env, stats, figures)
+        if t.iteration % self.every == 0:
+            self.checkpoint()
+        if self.snapshot_every and t.iteration % self.snapshot_every == 0:  # the policy as it was, for later evaluation
+            if t.iteration % self.every:
+                self.checkpoint()
+            name = f"frames{t.frames:09d}.pt"
+            export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / name)
+            if t.average is not None:
+                export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / "ema" / name,
+                              provenance={"weights": f"ema {t.average.decay}"}, weights=t.average.policy_state())
+        if self.video_every and t.iteration % self.video_every == 0:
+            path = self.checkpoint() if t.iteration % self.every else ckpt_dir / "last.pt"
+            self.run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",
+                                        t.env.trails.categories, int(np.median(t.env.curriculum.levels)),
+                                        seconds=float(self.cfg.logger.get("video_seconds", 4.0))), t.frames)
+        return stats
+
+
+def _sequential_loop(t: Trainer, collector, pool: WorkerEnvs | None, ends: _IterationEnds, bar, stop) -> dict:
+    """Collect a batch, update on it, in turn."""
+    summary: dict = {}
+    collected = batch_at = time.perf_counter()
+    for data in collector:
+        now = time.perf_counter()
+        iteration_s, batch_at = now - batch_at, now  # from the last batch in hand to this one
+        data = data.copy()  # a new structure over the same tensors: the update's new keys stay out of the buffer
+        if pool is not None:
+            pool.pull()  # the workers' curriculum and counters, for the logs and the checkpoint
+        started = time.perf_counter()
+        collect_s = started - collected
+        stats = t.update(data)
+        if t.average is not None:  # reads the trained weights only: training is unchanged
+            t.average.update()
+        collector.update_policy_weights_()  # Ray: the trained policy's weights, sent to every worker
+        t.iteration += 1
+        t.frames += data.numel()
+        bar.update(data.numel())
+        stats["train/update_s"] = time.perf_counter() - started
+        stats["train/collect_s"] = collect_s
+        stats["train/iteration_s"] = iteration_s
+        t.before_collect()  # before the checkpoint, so that it holds the settings its resume collects with
+        if pool is not None:
+            t.sync_workers(pool, first=False)
+        stats = ends.close(data, stats)
+        bar.set_postfix(t.postfix(stats))
+        summary = {"iteration": t.iteration, "frames": t.frames, **stats}
+        collected = time.perf_counter()
+        if stop.signum is not None:
+            summary["interrupted"] = stop.signum
+            break
+    return summary
+
+
+def _overlapped_loop(t: Trainer, collector, policy: torch.nn.Module, ends: _IterationEnds, bar, stop) -> dict:
+    """``collector.overlap``: batch ``k + 1`` is collected in a thread, by ``policy`` holding the
+    weights from before update ``k``, while update ``k`` runs; an iteration whose end is due to
+    write the run's state (:meth:`_IterationEnds.due`) collects batch ``k + 1`` after that, with the
+    weights of update ``k``, so checkpoints lie between batches and a resumed run collects as the
+    uninterrupted one would. The env's figures are taken between batches; ``train/collect_s`` is
+    the collection's own time, ``train/wait_s`` the update's wait for it, ``train/iteration_s``
+    the time from one batch in hand to the next.
+
+    A signal during an overlapped update ends the run after the batch being collected beside it:
+    that batch is dropped (its frames are not counted) and the checkpoint holds the env as it left it.
+    """
+    thread_local_sampling_mode()  # the update's losses set their deterministic mode in their own thread only
+    summary: dict = {}
+    iterator = iter(collector)
+    batch_at = time.perf_counter()
+    data, collect_s = next_batch(iterator)
+    while data is not None:
+        now = time.perf_counter()
+        iteration_s, batch_at = now - batch_at, now
+        n = data.numel()
+        figures = ends.run.env_figures(t.env)  # before the env moves on to the next batch
+        k, frames = t.iteration, t.frames
+        t.iteration, t.frames = k + 1, frames + n  # the next batch's settings, at the counters it is collected at
+        t.before_collect()
+        t.iteration, t.frames = k, frames
+        overlapped = not ends.due(k + 1) and stop.signum is None
+        if overlapped:
+            t.refresh_overlap_policy(policy)  # the weights before this update
+            prefetch = Prefetch(iterator)
+        started = time.perf_counter()
+        try:
+            stats = t.update(data)
+            update_s = time.perf_counter() - started
+        finally:
+            if overlapped:  # never leave the thread running
+                waiting = time.perf_counter()
+                prefetched = prefetch.result()
+                wait_s = time.perf_counter() - waiting
+        if t.average is not None:  # reads the trained weights only: training is unchanged
+            t.average.update()
+        t.iteration, t.frames = k + 1, frames + n
+        bar.update(n)
+        stats.update({"train/update_s": update_s, "train/collect_s": collect_s, "train/iteration_s": iteration_s,
+                      "train/overlapped": float(overlapped)})
+        if overlapped:
+            stats["train/wait_s"] = wait_s
+        stats = ends.close(data, stats, figures)
+        bar.set_postfix(t.postfix(stats))
+        summary = {"iteration": t.iteration, "frames": t.frames, **stats}
+        if stop.signum is not None:
+            summary["interrupted"] = stop.signum
+            break
+        if overlapped:
+            data, collect_s = prefetched
+        else:
+            t.refresh_overlap_policy(policy)  # this update's weights
+            data, collect_s = next_batch(iterator)
+    return summary
+
+
+def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames: int, reseed: bool | None,
+               policy: torch.nn.Module | None = None):
     """``(collector, pool)``: torchrl's ``Collector`` on the trainer's own env (``pool`` None), or,
     when workers step the worlds, a ``MultiSyncCollector`` of K processes or a ``RayCollector`` of
     K actors with the :class:`WorkerEnvs` that mirrors their env state (``reseed``: from
-    :func:`_check_slices`; ``None`` for a fresh run)."""
+    :func:`_check_slices`; ``None`` for a fresh run). ``policy``: ``collector.overlap``'s copy of
+    the behaviour, which the (one-process) collector then runs, handing out a new batch each time."""
     workers = collector_workers(cfg)
     kwargs = dict(exploration_type=ExplorationType.RANDOM, **t.collector_kwargs)
     if not _pooled(cfg, workers):
@@ -236,8 +357,9 @@ def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames:
         # (the loop is done with a batch before the next is collected; _loop takes a shallow copy
         # so the entries an update adds stay out of the buffer). The clone copied every depth
         # stack twice (root and next), ~0.2 s of a student's 0.6 s collection (BENCHMARKS.md).
-        return Collector(collect_env, t.behaviour, frames_per_batch=frames_per_batch, total_frames=total_frames,
-                         return_same_td=True, **kwargs), None
+        # collector.overlap collects the next batch while the update reads this one: a clone each.
+        return Collector(collect_env, t.behaviour if policy is None else policy, frames_per_batch=frames_per_batch,
+                         total_frames=total_frames, return_same_td=policy is None, **kwargs), None
     if collector_backend(cfg) == "ray":  # K Ray actors, each its slice (legoh_rl/training/ray_collection.py)
         collector = ray_collection.make_ray_collector(
             t.env.cfg, workers, t.env_wrap, t.behaviour, frames_per_batch, total_frames,
@@ -264,6 +386,39 @@ def collector_workers(cfg: DictConfig) -> int:
     workers = check_workers(cfg.collector.get("workers", 1), int(cfg.env.num_envs))
     collector_backend(cfg)
     return workers
+
+
+def collector_overlap(cfg: DictConfig, t: Trainer | None = None) -> bool:
+    """``collector.overlap`` (false when absent), checked against the rest of the run's settings
+    and, given, its trainer.
+
+    Raises:
+        ValueError: overlap with worker processes or Ray, on another device than the CPU, with
+            torch on more than one thread (``torch_threads``, ``update_threads``), or for a trainer
+            that does not allow it (:attr:`Trainer.overlap_ready`); the message names the settings.
+    """
+    overlap = cfg.collector.get("overlap", False)
+    if not isinstance(overlap, bool):
+        raise ValueError(f"collector.overlap must be true or false, got {overlap!r}")
+    if not overlap:
+        return False
+    workers, backend = collector_workers(cfg), collector_backend(cfg)
+    if workers > 1 or backend != "local":
+        raise ValueError("collector.overlap=true collects in a thread of the training process: it needs "
+                         f"collector.workers=1 and collector.backend=local (got workers={workers}, backend={backend})")
+    device = str(cfg.get("device") or "cpu")
+    if device not in ("cpu", "auto") or resolve_device(device).type != "cpu":
+        raise ValueError(f"collector.overlap=true is for runs on the CPU (device=cpu), got device={device}")
+    threads = {k: cfg.get(k) for k in ("torch_threads", "update_threads") if cfg.get(k) is not None}
+    if any(int(v) != 1 for v in threads.values()):
+        raise ValueError("collector.overlap=true runs the update and the collection on one torch thread each "
+                         f"(their numerics must not depend on which runs when): set torch_threads=1 and "
+                         f"update_threads=1 or null, got {', '.join(f'{k}={v}' for k, v in threads.items())}")
+    if t is not None and not t.overlap_ready:
+        raise ValueError(f"collector.overlap=true: this recipe's trainer ({type(t).__name__}) does not allow "
+                         "collecting during its update (its update draws random numbers from the collecting "
+                         "thread's generator); set collector.overlap=false")
+    return True
 
 
 def collector_backend(cfg: DictConfig) -> str:
