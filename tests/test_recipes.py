@@ -742,6 +742,29 @@ def test_experiment_oracle_h1_foot_scan_is_stage_4_widening_stage_3(tmp_path):
     assert parts.meta["init_widened"]["scandots"] == [132, 222] and parts.env.cfg.gait_feedforward == schedule.gain
 
 
+def test_experiment_oracle_g1_foot_scan_is_h1s_stage_4_on_g1s_networks(tmp_path):
+    """G1 without the feedforward: H1's stage-4 settings but the robot and its swing, started from
+    oracle_g1_trails' final state (widened), on that run's anneal (0.58 at its end, 0 ~23M frames on)."""
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_g1_foot_scan", f"checkpoint.dir={tmp_path}"])
+    h1 = cfg_of("oracle_ppo", ["experiment=oracle_h1_foot_scan", f"checkpoint.dir={tmp_path}"])
+    g1 = cfg_of("oracle_ppo", ["experiment=oracle_g1_trails", f"checkpoint.dir={tmp_path}"])
+    assert {**cfg.env, "robot": "h1", "gait_amplitude": h1.env.gait_amplitude} == dict(h1.env)
+    assert cfg.env.robot == "g1" and cfg.env.gait_amplitude == g1.env.gait_amplitude
+    assert cfg.ppo == h1.ppo and cfg.model == h1.model and cfg.collector.overlap is True and cfg.stages is None
+    assert Path(cfg.checkpoint.init).is_file() and cfg.checkpoint.init_widen is True
+    oracle_ppo.validate(cfg)
+    schedule, _ = oracle_ppo.feedforward_schedule(cfg)
+    init = load_checkpoint(cfg.checkpoint.init)
+    assert init["meta"]["robot"] == "g1" and schedule.gain == init["meta"]["gait_feedforward"]
+    assert math.isclose(schedule.gain / schedule.anneal[1], 1.0 / 40_000_000)  # oracle_g1_trails' slope
+    assert schedule.anneal[1] < cfg.collector.total_frames
+    small = cfg_of("oracle_ppo", ["experiment=oracle_g1_foot_scan", f"checkpoint.dir={tmp_path}", "env.num_envs=2",
+                                  "env.categories=[randommix]", "env.category_weights=null", "env.variants=1",
+                                  "env.num_threads=1", "logger.backend=csv"])
+    parts = oracle_ppo.build(small)
+    assert parts.meta["init_widened"]["scandots"] == [132, 222] and parts.env.cfg.gait_feedforward == schedule.gain
+
+
 @pytest.mark.parametrize("run", ["oracle_h1_footholds", "oracle_h1_pit_rungs"])
 def test_a_resumed_inheriting_stage_keeps_the_schedule_its_own_state_recorded(tmp_path, run):
     """The committed run states were started with the gains copied by hand: resumed under
