@@ -2,7 +2,7 @@
 
     python benchmarks/training_throughput.py [--oracle-iters 8] [--student-iters 6] [--skip-student]
         [--skip-oracle] [--oracle-update-threads 1 2] [--oracle-settings "" "kl_measure=loss_forward"]
-        [--repeats 2] [--students student_h1_trails student_h1]
+        [--repeats 2] [--students student_h1_trails student_h1] [--student-settings "" "collector.overlap=true ..."]
 
 Each training rate is printed as env steps/s and as a ratio to its env alone (same worlds, mode
 and threads):
@@ -129,6 +129,8 @@ def main() -> None:
                    help="oracle runs per count and setting, alternated (A B A B)")
     p.add_argument("--students", nargs="+", default=["student_h1_trails", "student_h1"],
                    help="unified experiments to measure (one pair of rows each)")
+    p.add_argument("--student-settings", nargs="+", default=[""],
+                   help='extra overrides of the student runs, one pair of rows each ("" = none)')
     p.add_argument("--skip-student", action="store_true")
     p.add_argument("--skip-oracle", action="store_true")
     args = p.parse_args()
@@ -162,14 +164,18 @@ def main() -> None:
         for name in [] if args.skip_student else args.students:
             cfg, env_cfg = student_env(name)
             frames = env_cfg.num_envs * int(cfg.collector.steps_per_env) * (args.student_iters + 1)
-            for phase, extra in (("DAgger", ["dagger_decay_iters=1"]),
-                                 ("PPO + L_im + L_hie", ["dagger_iters=1", "dagger_decay_iters=1", "hlm.enabled=true", "hlm.warmup_iters=1"])):
-                run = Path(tmp) / f"{name}-{phase.split()[0].lower()}"
-                torch.set_num_threads(int(cfg.torch_threads))
-                unified.train(compose_cfg("unified", [f"experiment={name}", *extra, f"teacher={teacher}",
-                                                      f"checkpoint.dir={run}", f"collector.total_frames={frames}",
-                                                      "checkpoint.snapshot_every=0", "logger.backend=csv"]))
-                rows.append((f"(c) student training, `{name}`, {phase}", name, *training_rate(run)))
+            for n, setting in enumerate(args.student_settings):
+                for phase, extra in (("DAgger", ["dagger_decay_iters=1"]),
+                                     ("PPO + L_im + L_hie", ["dagger_iters=1", "dagger_decay_iters=1", "hlm.enabled=true",
+                                                             "hlm.warmup_iters=1"])):
+                    run = Path(tmp) / f"{name}-{phase.split()[0].lower()}-{n}"
+                    torch.set_num_threads(int(cfg.torch_threads))
+                    unified.train(compose_cfg("unified", [f"experiment={name}", *extra, f"teacher={teacher}",
+                                                          f"checkpoint.dir={run}", f"collector.total_frames={frames}",
+                                                          "checkpoint.snapshot_every=0", "logger.backend=csv",
+                                                          *setting.split()]))
+                    rows.append((f"(c) student training, `{name}`, {phase}" + (f", `{setting}`" if setting else ""),
+                                 name, *training_rate(run)))
     after = alone_rates(args)
     alone = {k: (before[k] + after[k]) / 2 for k in before}
     print("\n| measurement | env steps/s | ratio to the env alone |")

@@ -28,6 +28,7 @@ import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when 
 # isort: split
 import dataclasses
 import functools
+from collections import deque
 from pathlib import Path
 
 import hydra
@@ -258,6 +259,10 @@ class UnifiedTrainer(Trainer):
     (``collect_env``: depth history, goal tiling, perception hold on ``env``) is collected with
     the DAgger mixture of student and teacher, and each batch gets :func:`update`."""
 
+    #: collector.overlap: the update draws from its own generator (:attr:`generator`) and the
+    #: collecting copy of the DAgger mixture gets the schedule with the weights
+    overlap_ready = True
+
     def __init__(self, cfg: DictConfig, **parts) -> None:
         self.cfg = cfg
         for name, value in parts.items():
@@ -265,10 +270,20 @@ class UnifiedTrainer(Trainer):
         self.desc = f"unified ({cfg.student.perception})"
         self.behaviour = DAggerMixture(self.student.policy, self.teacher, seed=int(cfg.env.seed))
         self.env_wrap = functools.partial(student_env, student=self.student)  # each worker's transforms
+        # collector.overlap: the update's minibatch and encoder-tick draws (checkpointed as "minibatch_rng")
+        self.generator = (torch.Generator().manual_seed(int(cfg.env.seed) + 3)
+                          if cfg.collector.get("overlap", False) else None)
+        self.betas: deque[float] = deque()  # the DAgger betas of the batches collected and not yet updated on
 
     def before_collect(self) -> None:
         self.behaviour.beta = beta_at(self.iteration, self.cfg)
         self.behaviour.student_mean = self.iteration < self.cfg.dagger_iters
+        self.betas.append(self.behaviour.beta)
+
+    def refresh_overlap_policy(self, policy) -> None:
+        """The student's weights (the teacher's are fixed) and the schedule :meth:`before_collect` set."""
+        super().refresh_overlap_policy(policy)
+        policy.set_schedule(self.behaviour.beta, self.behaviour.student_mean)
 
     def sync_workers(self, workers, first: bool) -> None:
         """The DAgger mixture's beta and mean switch in every worker's policy; first, a coin-flip
@@ -280,7 +295,8 @@ class UnifiedTrainer(Trainer):
 
     def update(self, data) -> dict[str, float]:
         stats = update(self, data, self.iteration, self.cfg)
-        stats["train/dagger_beta"] = self.behaviour.beta
+        # the beta the batch was collected with (collector.overlap has set the next batch's already)
+        stats["train/dagger_beta"] = self.betas.popleft() if self.betas else self.behaviour.beta
         stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
         return stats
 
@@ -290,7 +306,8 @@ class UnifiedTrainer(Trainer):
                 "sched": self.sched.state_dict(), "vae_optim": self.vae_optim.state_dict(),
                 "teacher": str(self.cfg.teacher), "teacher_sha256": self.teacher_sha256,
                 "replay": None if self.replay is None else self.replay.state_dict(),
-                "weight_average": None if self.average is None else self.average.state_dict()}
+                "weight_average": None if self.average is None else self.average.state_dict(),
+                **({} if self.generator is None else {"minibatch_rng": self.generator.get_state()})}
 
     def postfix(self, stats: dict) -> dict[str, str]:
         return {"im": f"{stats.get('loss/im_action', float('nan')):.3f}", **super().postfix(stats)}
@@ -400,6 +417,8 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
         print(f"checkpoint.ema_decay: the weight average starts at {path}'s weights")
     if exact:
         set_rng_state(state["rng"])
+        if p.generator is not None and "minibatch_rng" in state:  # else: a run that did not overlap, seeded afresh
+            p.generator.set_state(state["minibatch_rng"])
         p.run_id = state.get("run_id")
     p.iteration, p.frames = state["iteration"], state["frames"]
 
@@ -421,6 +440,7 @@ def beta_at(iteration: int, cfg: DictConfig) -> float:
 def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str, float]:
     """One training step on a collected ``[N, T]`` batch; returns mean diagnostics."""
     teacher, ppo, gae, dagger, vae, hlm = p.teacher, p.ppo, p.gae, p.dagger, p.vae, p.hlm
+    gen = p.generator  # collector.overlap: the update's own draws (None: torch's global generator)
     teacher.label(data)
     stats: dict[str, float] = {}
 
@@ -430,7 +450,7 @@ def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str
     # masked VAE on the teacher's actions (L_rec), its own optimiser
     flat = data.select(*vae.in_keys, strict=False).reshape(-1)  # the teacher's actions (and masks), not the depth
     for _ in range(cfg.hlm.vae_steps if cfg.hlm.enabled else 0):
-        out = vae(flat[torch.randperm(flat.shape[0])[: min(2048, flat.shape[0])]])
+        out = vae(flat[torch.randperm(flat.shape[0], generator=gen)[: min(2048, flat.shape[0])]])
         loss = sum(v for k, v in out.items() if k.startswith("loss_"))
         p.vae_optim.zero_grad()
         loss.backward()
@@ -451,15 +471,15 @@ def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str
     strided = cfg.get("minibatch_split", "permute") == "strided"
     train = data.exclude("next")
     if minibatches > 1 and not strided:  # one minibatch holds every world: no order to draw (and no copy)
-        train = train[torch.randperm(data.shape[0])]
+        train = train[torch.randperm(data.shape[0], generator=gen)]
     size = -(-data.shape[0] // minibatches)
     for _ in range(cfg.ppo.num_epochs if rl else int(cfg.dagger_epochs)):
         # strided: minibatch j is worlds j, j + M, j + 2M, ... (views, no copy; each spans the
         # categories, which sit in contiguous blocks of worlds), in a random order each epoch
-        parts = ([train[int(j)::minibatches] for j in torch.randperm(minibatches)] if strided else
+        parts = ([train[int(j)::minibatches] for j in torch.randperm(minibatches, generator=gen)] if strided else
                  [train[start : start + size] for start in range(0, data.shape[0], size)])
         for mb in parts:
-            student_pass(p.student, mb, grad_fraction(cfg))
+            student_pass(p.student, mb, grad_fraction(cfg), gen)
             terms = {k: v for k, v in dagger(mb).items() if k.startswith("loss_")}
             if use_hlm:
                 terms.update({k: v for k, v in hlm(mb).items() if k.startswith("loss_")})

@@ -96,3 +96,26 @@ def test_state_dict_round_trip_continues_the_same_window_and_samples():
     assert copy.train(torch.optim.SGD(b.parameters(), lr=0.0)) == rp.train(torch.optim.SGD(a.parameters(), lr=0.0))
     with pytest.raises(ValueError, match="saved window holds 20 steps, this one 10"):
         LocomotionReplay(actor(), 10, 4, 2).load_state_dict(rp.state_dict())
+
+
+def test_sampling_draws_from_its_own_stream_and_leaves_the_global_generator_alone():
+    """Each train() samples with the numbers torch's generator gives under a seed drawn from the
+    window's stream, without reading or moving the global generator (a collecting thread's)."""
+    rp = LocomotionReplay(actor(), 20, 4, 3, seed=3)
+    rp.extend(batch(2, 10))
+    seed = int(torch.randint(0, 2**31 - 1, (1,), generator=torch.Generator().manual_seed(3)))
+    expected = torch.randint(20, (3, 4), generator=torch.Generator().manual_seed(seed))  # 3 steps of 4 indices
+    seen = []
+    real = rp.buffer.storage.get
+
+    def get(index):
+        seen.append(torch.as_tensor(index).clone())
+        return real(index)
+
+    rp.buffer.storage.get = get
+    torch.manual_seed(11)
+    before = torch.get_rng_state()
+    rp.train(torch.optim.SGD(rp.net.parameters(), lr=0.0))
+    assert torch.equal(torch.get_rng_state(), before)
+    assert torch.equal(torch.stack(seen), expected)
+    assert rp.buffer.storage._rng is None  # nothing of it in the buffer's state

@@ -24,6 +24,7 @@ RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 sys.path.insert(0, str(RECIPES))
 
 import oracle_ppo  # noqa: E402
+import unified  # noqa: E402
 
 TINY = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1",
         "collector.steps_per_env=8", "ppo.num_epochs=1", "ppo.num_minibatches=2", "logger.backend=csv"]
@@ -184,3 +185,62 @@ def test_a_trainer_that_does_not_allow_overlap_is_named(tmp_path):
     env = HikingEnv(HikingEnvConfig(num_envs=4, categories=("randommix",), variants=1, num_threads=1))
     with pytest.raises(ValueError, match=r"\(Plain\) does not allow collecting during its update"):
         runner.train(cfg, lambda c: None, lambda c: Plain(env))
+
+
+@pytest.fixture(scope="module")
+def teacher(tmp_path_factory):
+    ck = tmp_path_factory.mktemp("oracle")
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}"]))
+    return ck / "last.pt"
+
+
+def _student(teacher, ck, frames, *extra):
+    """experiment=student_h1's cheap update on a tiny env: DAgger (decaying beta) with the replay
+    window and the encoder on a fraction of the ticks, then PPO + HLM."""
+    return unified.train(cfg_of("unified", TINY[:4] + ["logger.backend=csv", f"teacher={teacher}",
+                                                       "collector.steps_per_env=10", "dagger_iters=3",
+                                                       "hlm.warmup_iters=3", "dagger_minibatches=2",
+                                                       "minibatch_split=strided", "encoder_grad_fraction=0.5",
+                                                       "dagger_replay.capacity=40", "dagger_replay.batch_size=8",
+                                                       "dagger_replay.steps=2", "collector.overlap=true",
+                                                       "torch_threads=1", f"collector.total_frames={frames}",
+                                                       f"checkpoint.dir={ck}",
+                                                       *extra]))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_overlapped_student_is_deterministic_logs_its_betas_and_resumes(teacher, tmp_path, threads):
+    """Also with the physics and the depth render on 2 threads: torch's thread count is each
+    thread's own, so the render's in the collecting thread does not reach the update."""
+    extra = [f"env.num_threads={threads}"]
+    for run in ("a", "b"):
+        out = _student(teacher, tmp_path / run, 200, "checkpoint.every=3", *extra)
+        assert out["iteration"] == 5
+    a, b = (load_checkpoint(tmp_path / run / "last.pt") for run in ("a", "b"))
+    for part in ("perception", "actor", "critic", "vae"):
+        for k, v in a[part].items():
+            assert torch.equal(v, b[part][k]), (part, k)
+    assert torch.equal(a["minibatch_rng"], b["minibatch_rng"])
+    rows = [json.loads(line) for line in (tmp_path / "a" / "metrics.jsonl").open()]
+    cfg = cfg_of("unified", [f"teacher={teacher}", "dagger_iters=3"])
+    assert [r["train/dagger_beta"] for r in rows] == [unified.beta_at(i, cfg) for i in range(5)]
+    assert [r["train/overlapped"] for r in rows] == [1, 1, 0, 1, 1]
+    out = _student(teacher, tmp_path / "a", 240, "checkpoint.resume=auto", *extra)
+    assert out["iteration"] == 6
+
+
+def test_a_thread_count_set_in_one_thread_stays_there():
+    """What the student's overlap rests on: the depth render's torch_threads(n) in the collecting
+    thread leaves the updating thread's count (ATen's, OpenMP's, MKL's) as it was."""
+    torch.set_num_threads(1)
+    seen = {}
+
+    def other():
+        torch.set_num_threads(2)
+        seen["other"] = torch.get_num_threads()
+
+    thread = threading.Thread(target=other)
+    thread.start()
+    thread.join()
+    assert seen["other"] == 2 and torch.get_num_threads() == 1
+    assert "mkl_get_max_threads() : 1" in torch.__config__.parallel_info() or not torch.backends.mkl.is_available()

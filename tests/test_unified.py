@@ -370,9 +370,9 @@ def test_the_cheap_update_trains_resumes_and_keeps_snapshots(teacher, tmp_path, 
     # the strided minibatches are views of the batch: every world in exactly one of them
     seen = []
 
-    def spy(student, mb, fraction):
+    def spy(student, mb, fraction, generator=None):
         seen.append(mb["proprio"][:, 0, 0])  # a world's first proprio entry identifies it
-        return real_pass(student, mb, fraction)
+        return real_pass(student, mb, fraction, generator)
 
     real_pass = unified.student_pass
     monkeypatch.setattr(unified, "student_pass", spy)

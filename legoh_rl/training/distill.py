@@ -151,15 +151,17 @@ class DAggerMixture(TensorDictModuleBase):
         return td
 
 
-def student_pass(student, td: TensorDictBase, encoder_grad_fraction: float = 1.0) -> TensorDictBase:
+def student_pass(student, td: TensorDictBase, encoder_grad_fraction: float = 1.0,
+                 generator: torch.Generator | None = None) -> TensorDictBase:
     """Recompute the student's perception (with gradients) and deterministic action on ``td``.
 
     ``td`` is ``[..., T]`` (time last). Writes ``z_uni``, ``delta_g0``, ``goals_uni``,
     ``goal_next`` (via :meth:`PerceptionHold.hold_forward`) and ``loc_uni`` (A,).
     ``encoder_grad_fraction`` < 1: the perception encoder runs on that fraction of the tick steps,
-    the features recorded while acting on the others (a student made with ``record_features``).
+    the features recorded while acting on the others (a student made with ``record_features``),
+    drawn from ``generator`` (``None``: torch's global generator).
     """
-    student.hold.hold_forward(td, encoder_grad_fraction=encoder_grad_fraction)
+    student.hold.hold_forward(td, encoder_grad_fraction=encoder_grad_fraction, generator=generator)
     net = student.actor.module[0]
     out = net(td.select(*net.in_keys))
     td.set(STUDENT_ACTION_KEY, out["loc"])

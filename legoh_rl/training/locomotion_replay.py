@@ -56,7 +56,8 @@ class LocomotionReplay:
         self.loss = DAggerLoss(w1=0.0, w2=0.0, w3=1.0)
         self.loss.set_keys(action_tea=action_key, action_uni="loc")
         self._gen = torch.Generator().manual_seed(int(seed))
-        self.buffer = ReplayBuffer(storage=LazyTensorStorage(int(capacity), device=torch.device(device)),
+        self.device = torch.device(device)
+        self.buffer = ReplayBuffer(storage=LazyTensorStorage(int(capacity), device=self.device),
                                    sampler=RandomSampler(),
                                    batch_size=int(batch_size))
 
@@ -108,9 +109,16 @@ class LocomotionReplay:
             return float("nan")
         params = list(self.net.parameters())
         total = 0.0
-        with torch.random.fork_rng():
-            torch.manual_seed(int(torch.randint(0, 2**31 - 1, (1,), generator=self._gen)))
+        # this call's draws from a generator of their own, seeded from the window's stream: the
+        # numbers torch's global generator gave under that seed, which it neither reads nor moves
+        # (collector.overlap collects from it in another thread meanwhile)
+        draws = torch.Generator(device=self.device)
+        draws.manual_seed(int(torch.randint(0, 2**31 - 1, (1,), generator=self._gen)))
+        self.buffer.set_rng(draws)
+        try:
             batches = [self.buffer.sample() for _ in range(self.steps)]
+        finally:
+            self.buffer.set_rng(None)  # the buffer's state_dict keeps no generator
         for batch in batches:
             out = self.net(batch.select(*self.net.in_keys))
             batch.set("loc", out["loc"])

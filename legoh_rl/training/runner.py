@@ -296,6 +296,7 @@ def _overlapped_loop(t: Trainer, collector, policy: torch.nn.Module, ends: _Iter
     summary: dict = {}
     iterator = iter(collector)
     batch_at = time.perf_counter()
+    t.refresh_overlap_policy(policy)  # the weights (and settings) the trainer starts or resumes with
     data, collect_s = next_batch(iterator)
     while data is not None:
         now = time.perf_counter()
@@ -357,7 +358,7 @@ def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames:
         # (the loop is done with a batch before the next is collected; _loop takes a shallow copy
         # so the entries an update adds stay out of the buffer). The clone copied every depth
         # stack twice (root and next), ~0.2 s of a student's 0.6 s collection (BENCHMARKS.md).
-        # collector.overlap collects the next batch while the update reads this one: a clone each.
+        # collector.overlap collects the next batch while the update reads this one: a new one each.
         return Collector(collect_env, t.behaviour if policy is None else policy, frames_per_batch=frames_per_batch,
                          total_frames=total_frames, return_same_td=policy is None, **kwargs), None
     if collector_backend(cfg) == "ray":  # K Ray actors, each its slice (legoh_rl/training/ray_collection.py)

@@ -404,11 +404,11 @@ class PerceptionHold(TensorDictModuleBase):
         self._check_output(out, sub.batch_dims)
         return out
 
-    def _run_cached(self, td: TensorDictBase, fraction: float) -> TensorDictBase:
+    def _run_cached(self, td: TensorDictBase, fraction: float, generator: torch.Generator | None = None) -> TensorDictBase:
         """:meth:`_run` with the encoder on a random ``fraction`` of ``td``'s samples (any batch
         shape) and the recorded ``feature_key`` on the others (detached)."""
         feats = td.get(self.feature_key).detach().clone()
-        pick = torch.rand(td.batch_size, device=feats.device) < fraction
+        pick = torch.rand(td.batch_size, device=feats.device, generator=generator) < fraction
         if bool(pick.any()):
             sub = td.select(*self._encoder.in_keys, strict=False)[pick]
             feats = feats.to(torch.get_default_dtype())
@@ -512,7 +512,8 @@ class PerceptionHold(TensorDictModuleBase):
         td.set(self.feature_key, feats)
 
     # ------------------------------------------------------------------ training
-    def hold_forward(self, tensordict: TensorDictBase, encoder_grad_fraction: float = 1.0) -> TensorDictBase:
+    def hold_forward(self, tensordict: TensorDictBase, encoder_grad_fraction: float = 1.0,
+                     generator: torch.Generator | None = None) -> TensorDictBase:
         """Training: recompute ``hold_keys`` on the tick steps of ``[..., T]`` data, hold between.
 
         ``tensordict`` has time as its last batch dim (a Collector batch ``[N, T]``, or a
@@ -536,9 +537,10 @@ class PerceptionHold(TensorDictModuleBase):
 
         ``encoder_grad_fraction`` ``f`` in ``(0, 1]``: below 1, with ``feature_key`` set and the
         recorded features in ``tensordict`` (and held state, so ticks are exactly those of
-        acting), the encoder runs on a random fraction ``f`` of the tick steps (torch's global
-        generator) and the recorded features stand in on the others (see "Cheaper training
-        passes"); otherwise every tick step runs the whole module.
+        acting), the encoder runs on a random fraction ``f`` of the tick steps (drawn from
+        ``generator``, or torch's global generator when ``None``) and the recorded features stand
+        in on the others (see "Cheaper training passes"); otherwise every tick step runs the
+        whole module.
         """
         if not 0.0 < float(encoder_grad_fraction) <= 1.0:
             raise ValueError(f"PerceptionHold.hold_forward: encoder_grad_fraction must lie in (0, 1], "
@@ -557,7 +559,7 @@ class PerceptionHold(TensorDictModuleBase):
         tdf = td.select(*keys, strict=False).reshape(n_rows, t_len)
         tick, has_state = self._tick(tdf)
         cached = cached and has_state  # without held state the ticks may differ from acting's
-        run = self._run if not cached else lambda x: self._run_cached(x, float(encoder_grad_fraction))
+        run = self._run if not cached else lambda x: self._run_cached(x, float(encoder_grad_fraction), generator)
         tick = tick.clone()  # may alias the stored flag
         if not has_state:
             tick[:, 0] = True
