@@ -383,6 +383,33 @@ def test_gait_stats_read_feet_on_the_ground_for_a_standing_robot():
         gait_stats.gait_stats("zero", seconds=0.5)
 
 
+def test_gait_figures_count_flights_tilt_and_detours_by_hand():
+    """Two robots, four steps of 0.02 s: robot 0 leaps (both feet off at steps 1-2), robot 1 walks
+    one foot at a time and falls after step 2 (its last step not counted)."""
+    import gait_stats
+
+    on, off = True, False
+    contact = np.array([[[on, on], [on, off]], [[off, off], [off, on]], [[off, off], [on, off]],
+                        [[on, on], [off, off]]])  # (T=4, N=2, 2)
+    lift = np.where(contact, 0.0, 0.1)
+    walking = np.array([[True, True], [True, True], [True, True], [True, False]])
+    pos = np.zeros((4, 2, 2))
+    pos[:, 1, 1] = [0.0, 0.1, -0.3, 5.0]  # robot 1 strays 0.3 m sideways (5 m after its fall: not counted)
+    vel = np.zeros((4, 2, 2))
+    vel[..., 0] = 0.5
+    roll, pitch = np.zeros((4, 2)), np.zeros((4, 2))
+    roll[:, 0], pitch[:, 0] = 0.3, 0.4  # robot 0 tilted 0.5 rad
+    f = gait_stats.gait_figures(contact, lift, vel, pos, roll, pitch, walking, dt=0.02)
+    # 7 walking steps: both feet off at robot 0's steps 1 and 2 only (robot 1's step 3 is after its fall)
+    assert f["flight"] == pytest.approx(2 / 7) and f["flight_max_s"] == pytest.approx(0.04)
+    assert f["airborne"] == pytest.approx(7 / 14)  # off feet among the 14 walking foot-steps (4 + 3)
+    assert f["lift_max"] == 0.1 and f["lift_mean"] == pytest.approx(0.7 / 14) and f["speed"] == pytest.approx(0.5)
+    assert f["lean_deg"] == pytest.approx(np.degrees(0.5) * 4 / 7)
+    assert f["detour_m"] == pytest.approx((0.0 + 0.3) / 2)
+    none = gait_stats.gait_figures(contact, lift, vel, pos, roll, pitch, np.zeros((4, 2), bool), dt=0.02)
+    assert all(np.isnan(v) for v in none.values())
+
+
 def test_the_committed_oracle_walks_lifting_its_feet():
     """checkpoints/oracle_h1.pt (gait feedforward) steps: feet well off the ground, forward speed."""
     import gait_stats
