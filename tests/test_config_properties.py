@@ -203,6 +203,7 @@ TRAINING = {
     "collector.total_frames": bad_int(1),
     "collector.workers": bad_int(1),
     "collector.allow_new_workers": bad_flag(),
+    "collector.overlap": bad_flag(),
     "collector.backend": bad_choice(("local", "ray")),
     "collector.ray.address": bad_name(null=True),
     "collector.ray.num_cpus_per_worker": bad_int(1),
