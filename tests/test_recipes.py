@@ -419,6 +419,24 @@ def test_the_committed_oracle_walks_lifting_its_feet():
     assert s["lift_p95"] > 0.10 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s
 
 
+def test_the_foot_scan_oracle_walks_without_the_scripted_swing():
+    """checkpoints/oracle_h1_foot_scan.pt (issue 52) acts with no gait feedforward: its meta records
+    none, its env's PD targets get none, and it still steps (feet well off the ground, forward
+    speed); the clock's phase stays in its observation."""
+    import gait_stats
+
+    from legoh_rl.training.policies import load_cell_policy
+
+    path = str(RECIPES.parent / "checkpoints" / "oracle_h1_foot_scan.pt")
+    meta = load_checkpoint(path)["meta"]
+    assert "gait_feedforward" not in meta and meta["foot_scan"] and meta["gait_period"] == 0.8
+    env, _, _, base = load_cell_policy(path, "randommix", 0, 1, 0)
+    assert base.cfg.gait_feedforward == 0.0 and env.observation_spec["scandots"].shape[-1] == 222
+    s = gait_stats.gait_stats(path, robots=4, seconds=4.0)
+    assert s["standing"] == 4
+    assert s["lift_p95"] > 0.10 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s
+
+
 def test_route_following_geometry_helpers_match_hand_computed_values():
     import route_following as rf
 

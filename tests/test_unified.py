@@ -430,3 +430,20 @@ def test_a_newly_registered_perception_network_is_a_student_perception(teacher, 
     out = unified.train(tiny(teacher, tmp_path / "ck", "student.perception=mine", "collector.total_frames=40"))
     assert out["iteration"] == 1 and built
     assert load_checkpoint(tmp_path / "ck" / "last.pt")["meta"]["perception"] == "mine"
+
+
+def test_experiment_student_h1_foot_scan_distils_the_oracle_without_feedforward(tmp_path):
+    """student_h1's recipe on checkpoints/oracle_h1_foot_scan.pt: the teacher reads its 222
+    scandots (foot scan) and neither acts on a scripted swing."""
+    root = RECIPES.parent
+    cfg = cfg_of("unified", ["experiment=student_h1_foot_scan", f"checkpoint.dir={tmp_path}"])
+    base = cfg_of("unified", ["experiment=student_h1", f"checkpoint.dir={tmp_path}"])
+    assert cfg.teacher == "checkpoints/oracle_h1_foot_scan.pt" and (root / cfg.teacher).is_file()
+    assert cfg.dagger_iters == cfg.hlm.warmup_iters == 3500 and cfg.collector.total_frames == 4500 * 64 * 24
+    assert cfg.env == base.env and cfg.student == base.student
+    small = cfg_of("unified", ["experiment=student_h1_foot_scan", f"checkpoint.dir={tmp_path}", f"teacher={root / cfg.teacher}",
+                               "env.num_envs=8", "env.categories=[randommix]", "env.category_weights=null",
+                               "env.variants=1", "env.num_threads=1", "logger.backend=csv"])
+    p = unified.build(small)
+    assert p.env.cfg.foot_scan and p.env.cfg.gait_feedforward == 0.0
+    assert p.env.observation_spec["scandots"].shape[-1] == 222
