@@ -19,7 +19,7 @@ and threads):
   it is; an entry that sets ``update_threads`` itself keeps its own), the whole set
   ``--repeats`` times in turn (A B A B: drifting load hits every setting alike); a row per count and setting, its rate over all its runs;
 * (c) student training, ``recipes/unified.py experiment=<name>`` for each ``--students``
-  experiment, with ``checkpoints/oracle_h1.pt`` as the teacher: the DAgger phase as it runs once
+  experiment, with the experiment's own teacher: the DAgger phase as it runs once
   the teacher's share has decayed (the student acts, the teacher labels: ``dagger_decay_iters=1``),
   then the PPO + L_im + L_hie phase (``dagger_iters=1``, HLM on). The experiments' own thread
   counts (``torch_threads``, ``env.num_threads``: 2 for the committed ones) are kept.
@@ -138,7 +138,6 @@ def main() -> None:
         p.error(f"--oracle-update-threads must be positive, got {args.oracle_update_threads}")
     if args.repeats < 1:
         p.error(f"--repeats must be positive, got {args.repeats}")
-    teacher = ROOT / "checkpoints" / "oracle_h1.pt"
     before = alone_rates(args)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -170,7 +169,7 @@ def main() -> None:
                                                              "hlm.warmup_iters=1"])):
                     run = Path(tmp) / f"{name}-{phase.split()[0].lower()}-{n}"
                     torch.set_num_threads(int(cfg.torch_threads))
-                    unified.train(compose_cfg("unified", [f"experiment={name}", *extra, f"teacher={teacher}",
+                    unified.train(compose_cfg("unified", [f"experiment={name}", *extra, f"teacher={ROOT / cfg.teacher}",
                                                           f"checkpoint.dir={run}", f"collector.total_frames={frames}",
                                                           "checkpoint.snapshot_every=0", "logger.backend=csv",
                                                           *setting.split()]))

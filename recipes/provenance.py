@@ -29,7 +29,7 @@ from pathlib import Path
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from legoh_rl.training.checkpoint import file_digest, load_checkpoint
+from legoh_rl.training.checkpoint import file_digest, load_checkpoint, recorded_checkpoint
 from legoh_rl.training.config_store import register_configs, upgrade_recorded_config
 from legoh_rl.training.schedules import INHERIT, inherited_schedule, recorded_schedule
 
@@ -133,6 +133,9 @@ def describe(path: Path, depth: int = 0, seen: set | None = None) -> list[str]:
     state = load_checkpoint(path)
     meta = state.get("meta", {})
     config = upgrade_recorded_config(state["config"]) if state.get("config") else {}  # in today's layout
+    if config.get("teacher"):  # the teacher's file today: found by its digest, or through a rename
+        config["teacher"] = recorded_checkpoint(config["teacher"], state.get("teacher_sha256")
+                                                or meta.get("teacher_sha256"), ROOT)
     shown = path.resolve().relative_to(ROOT) if path.resolve().is_relative_to(ROOT) else path
     lines = [f"{pad}{shown}",
              f"{pad}  kind {meta.get('kind')}, robot {meta.get('robot')}, iteration {state.get('iteration')}, "

@@ -57,6 +57,7 @@ from legoh_rl.training.checkpoint import (
     file_digest,
     load_checkpoint,
     load_weights,
+    recorded_checkpoint,
     require_training_state,
     resume_path,
     set_rng_state,
@@ -226,11 +227,14 @@ def check_teacher(state: dict, cfg: DictConfig, digest: str, path) -> None:
     """
     if cfg.get("allow_new_teacher", False):
         return
+    recorded = state.get("teacher", "")
+    meant = recorded_checkpoint(recorded, state.get("teacher_sha256"))  # the file today, renames followed
     same = (state["teacher_sha256"] == digest if "teacher_sha256" in state  # older checkpoints: the path
-            else Path(state.get("teacher", "")).resolve() == Path(cfg.teacher).resolve())
+            else Path(meant).resolve() == Path(cfg.teacher).resolve())
     if not same:
-        raise CheckpointError(f"{path} was distilled from teacher {state.get('teacher')!r}, this run names "
-                              f"{cfg.teacher!r} (other weights): pass teacher={state.get('teacher')} to continue, "
+        was = recorded if meant == recorded else f"{recorded} (now {meant})"
+        raise CheckpointError(f"{path} was distilled from teacher {was!r}, this run names "
+                              f"{cfg.teacher!r} (other weights): pass teacher={meant} to continue, "
                               "or allow_new_teacher=true to go on under the new teacher")
 
 

@@ -245,7 +245,7 @@ def test_recorded_configs_of_the_old_layout_are_upgraded():
 
 
 def test_committed_run_configs_upgrade_to_configs_today_builds():
-    for path in ("checkpoints/student_h1.pt", "checkpoints/oracle_h1.pt"):
+    for path in ("checkpoints/student_h1.pt", "checkpoints/oracle_h1.pt", "checkpoints/oracle_h1_clocked.pt"):
         state = load_checkpoint(ROOT / path)
         config = upgrade_recorded_config(state["config"])
         env = env_config(config["env"], state["meta"]["kind"], **policy_env_kwargs(state["meta"]))  # (a student's: its teacher's)

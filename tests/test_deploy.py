@@ -70,7 +70,9 @@ def test_oracle_graph_carries_the_meta_block_and_acts_like_the_checkpoint(export
     env, policy, kind = load_policy(str(ORACLE), TINY, variants=1, num_threads=1)
     onnx_env, onnx_policy, onnx_kind = load_policy(str(path), TINY, variants=1, num_threads=1)
     assert (kind, onnx_kind) == ("oracle", "oracle (onnx)")
-    assert onnx_env.cfg.gait_feedforward == env.cfg.gait_feedforward == info["meta"]["gait_feedforward"]  # rebuilt from the metadata
+    # rebuilt from the metadata: no feedforward (none in the meta block) and the foot scan
+    assert onnx_env.cfg.gait_feedforward == env.cfg.gait_feedforward == info["meta"].get("gait_feedforward", 0.0) == 0.0
+    assert onnx_env.cfg.foot_scan and env.cfg.foot_scan and info["meta"]["foot_scan"]
     worst = max(float((a["action"] - b["action"]).abs().max())
                 for _, a, b in _deterministic_steps(env, policy, onnx_policy, 100))
     assert worst < 1e-5, worst

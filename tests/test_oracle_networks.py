@@ -102,7 +102,7 @@ def test_the_default_is_the_papers_network_and_checkpoints_without_a_name_load_a
     paper = OracleNetworks(CFG)
     assert type(built) is OracleNetworks
     assert all(torch.equal(a, b) for a, b in zip(built.state_dict().values(), paper.state_dict().values(), strict=True))
-    state = load_checkpoint(ROOT / "checkpoints" / "oracle_h1.pt")
+    state = load_checkpoint(ROOT / "checkpoints" / "oracle_h1_clocked.pt")
     assert "network" not in state["oracle_config"]  # made before the key existed
     assert type(oracle_networks(state)) is OracleNetworks  # load_state_dict is strict
     assert cfg_of([]).model.network == "mlp"

@@ -411,23 +411,23 @@ def test_gait_figures_count_flights_tilt_and_detours_by_hand():
 
 
 def test_the_committed_oracle_walks_lifting_its_feet():
-    """checkpoints/oracle_h1.pt (gait feedforward) steps: feet well off the ground, forward speed."""
+    """checkpoints/oracle_h1_clocked.pt (gait feedforward) steps: feet well off the ground, forward speed."""
     import gait_stats
 
-    s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt"), robots=4, seconds=4.0)
+    s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1_clocked.pt"), robots=4, seconds=4.0)
     assert s["standing"] == 4
     assert s["lift_p95"] > 0.10 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s
 
 
 def test_the_foot_scan_oracle_walks_without_the_scripted_swing():
-    """checkpoints/oracle_h1_foot_scan.pt (issue 52) acts with no gait feedforward: its meta records
+    """checkpoints/oracle_h1.pt (issue 52: the foot-scan oracle) acts with no gait feedforward: its meta records
     none, its env's PD targets get none, and it still steps (feet well off the ground, forward
     speed); the clock's phase stays in its observation."""
     import gait_stats
 
     from legoh_rl.training.policies import load_cell_policy
 
-    path = str(RECIPES.parent / "checkpoints" / "oracle_h1_foot_scan.pt")
+    path = str(RECIPES.parent / "checkpoints" / "oracle_h1.pt")
     meta = load_checkpoint(path)["meta"]
     assert "gait_feedforward" not in meta and meta["foot_scan"] and meta["gait_period"] == 0.8
     env, _, _, base = load_cell_policy(path, "randommix", 0, 1, 0)
@@ -542,7 +542,7 @@ def test_imitation_gap_labels_the_students_own_states_with_the_teacher():
     from legoh_rl.training.policies import load_cell_policy
 
     ck = RECIPES.parent / "checkpoints"
-    student, teacher = str(ck / "student_h1.pt"), str(ck / "oracle_h1.pt")
+    student, teacher = str(ck / "student_h1.pt"), str(ck / "oracle_h1_clocked.pt")  # its teacher
     out = ig.imitation_gap(student, teacher, robots=2, seconds=0.3, variants=2)
     assert out["diff"].shape == (15, 2, 10) and np.isfinite(out["diff"]).all()
     env, policy, _, base = load_cell_policy(student, "randommix", 0, 2, 0, 2)
@@ -922,7 +922,7 @@ def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, caps
     assert "experiment student_h1: student_h1.yaml <- student_h1_trails.yaml" in out
     assert "trained by: python recipes/unified.py experiment=student_h1 checkpoint.resume=auto" in out
     assert "the experiment today gives the recorded settings" in out
-    assert "teacher:" in out and "checkpoints/oracle_h1.pt" in out
+    assert "teacher:" in out and "checkpoints/oracle_h1_clocked.pt" in out  # recorded as oracle_h1.pt, since renamed
     assert "experiment oracle_h1_footholds: oracle_h1_footholds.yaml <- oracle_h1_trails.yaml" in out
     assert "resolved config:" in out and "dagger_iters: 5000" in out
     # recorded in the old layout of the env section, printed in today's (upgrade_recorded_config)

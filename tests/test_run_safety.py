@@ -15,7 +15,14 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from legoh_rl.training.checkpoint import CheckpointError, export_policy, load_checkpoint
+from legoh_rl.training.checkpoint import (
+    RENAMED,
+    CheckpointError,
+    export_policy,
+    file_digest,
+    load_checkpoint,
+    recorded_checkpoint,
+)
 from legoh_rl.training.logging import MetricsFile, trim_csv_logs
 from legoh_rl.training.run_dir import RunDirError, RunDirLock, check_run_dir, open_run_dir
 
@@ -227,6 +234,35 @@ def test_student_resume_under_another_teacher_is_refused(tmp_path):
     p = unified.build(student("t2", "collector.total_frames=80", "checkpoint.resume=auto", "allow_new_teacher=true"))
     assert p.frames == 40
     assert unified.build(student("t1", "collector.total_frames=80", "checkpoint.resume=auto")).frames == 40
+    # the teacher's file renamed: found by its digest, named in the refusal, and resumable under its new name
+    export_policy(tmp_path / "s" / "last.pt", tmp_path / "slim.pt")
+    assert load_checkpoint(tmp_path / "slim.pt")["meta"]["teacher_sha256"] == file_digest(tmp_path / "t1" / "last.pt")
+    (tmp_path / "t1" / "last.pt").rename(tmp_path / "t1" / "moved.pt")
+    with pytest.raises(CheckpointError, match=r"t1/last.pt \(now .*t1/moved.pt\).*pass teacher=.*t1/moved.pt to continue"):
+        unified.build(student("t2", "collector.total_frames=80", "checkpoint.resume=auto"))
+    p = unified.build(cfg_of("unified", env + [f"teacher={tmp_path / 't1' / 'moved.pt'}", "collector.steps_per_env=10",
+                                               "dagger_iters=1", "ppo.num_epochs=1", f"checkpoint.dir={tmp_path / 's'}",
+                                               "collector.total_frames=80", "checkpoint.resume=auto"]))
+    assert p.frames == 40
+
+
+def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path):
+    """A path a run recorded means the file it held then: with the recorded digest, the file holding
+    those bytes (the same path, the RENAMED entry, a sibling); without one, RENAMED's name today."""
+    root = Path(__file__).resolve().parents[1]
+    old, (new, digest) = next(iter(RENAMED.items()))
+    assert file_digest(root / new) == digest  # the registry names the file's true bytes
+    assert recorded_checkpoint(old) == new  # records older than the rename hold no digest
+    assert recorded_checkpoint(old, digest, root) == new
+    assert recorded_checkpoint(old, file_digest(root / old), root) == old  # a record made after it
+    (tmp_path / "a.pt").write_bytes(b"a")
+    (tmp_path / "b.pt").write_bytes(b"b")
+    assert recorded_checkpoint(str(tmp_path / "a.pt"), file_digest(tmp_path / "b.pt")) == str(tmp_path / "b.pt")
+    rel = f"{tmp_path.name}/a.pt"  # relative to root: the answer stays relative
+    assert recorded_checkpoint(rel, file_digest(tmp_path / "b.pt"), tmp_path.parent) == f"{tmp_path.name}/b.pt"
+    assert recorded_checkpoint("ck/a.pt", file_digest(tmp_path / "b.pt"), tmp_path) == "ck/a.pt"  # no such folder
+    assert recorded_checkpoint(str(tmp_path / "a.pt"), "0" * 64) == str(tmp_path / "a.pt")  # nowhere: as recorded
+    assert recorded_checkpoint("elsewhere/x.pt") == "elsewhere/x.pt"
 
 
 def test_bad_action_total_survives_a_resume(tmp_path):

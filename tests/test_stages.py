@@ -147,7 +147,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("student_h1_randommix", "checkpoints/student_h1_randommix.pt"),
             ("student_h1_trails", "checkpoints/ablations/h1_lego_h_seed0.pt"),
             ("student_h1", "checkpoints/student_h1.pt"),
-            ("oracle_h1_footholds", "checkpoints/oracle_h1.pt"),
+            ("oracle_h1_footholds", "checkpoints/oracle_h1_clocked.pt"),
+            ("oracle_h1_foot_scan", "checkpoints/oracle_h1.pt"),
             ("oracle_g1_trails", "checkpoints/oracle_g1_trails.pt"),
             ("g1_lego_h", "checkpoints/student_g1.pt")]
 SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
@@ -200,7 +201,7 @@ def test_the_gpu_oracle_experiment_is_the_cpu_stage_on_warp_with_more_worlds():
 
 
 def test_the_g1_trail_oracle_is_the_h1_oracles_two_runs_as_one_schedule():
-    """oracle_g1_trails stages the two H1 runs behind checkpoints/oracle_h1.pt (oracle_h1_trails,
+    """oracle_g1_trails stages the two H1 runs behind checkpoints/oracle_h1_clocked.pt (oracle_h1_trails,
     then oracle_h1_footholds to that export) for G1: each stage trains with the env, PPO and model
     settings of H1's run, but for the robot, G1's wider swing and the feedforward gain (one anneal
     over the whole schedule here, a new start per run there), and ends where H1's run ended."""
@@ -208,7 +209,7 @@ def test_the_g1_trail_oracle_is_the_h1_oracles_two_runs_as_one_schedule():
     stages = parse_stages(g1.stages)
     assert [s.name for s in stages] == ["trails", "footholds"]
     ends = [load_checkpoint(ROOT / "runs" / "oracle_h1_trails" / "last.pt")["frames"]]
-    ends.append(ends[0] + load_checkpoint(ROOT / "checkpoints" / "oracle_h1.pt")["frames"])
+    ends.append(ends[0] + load_checkpoint(ROOT / "checkpoints" / "oracle_h1_clocked.pt")["frames"])
     for stage, name, end in zip(stages, ("oracle_h1_trails", "oracle_h1_footholds"), ends, strict=True):
         h1 = OmegaConf.to_container(cfg_of("oracle_ppo", [f"experiment={name}"]), resolve=True)
         mine = OmegaConf.to_container(stage_settings(g1, stage), resolve=True)
@@ -226,7 +227,7 @@ def test_the_g1_trail_oracle_is_the_h1_oracles_two_runs_as_one_schedule():
     gain = lambda frames: 1.0 - (frames - anneal[0]) / (anneal[1] - anneal[0])  # noqa: E731
     footholds = ROOT / "runs" / "oracle_h1_footholds" / "last.pt"
     assert abs(recorded_schedule(load_checkpoint(footholds), footholds).gain - gain(ends[0])) < 1e-3
-    assert abs(load_checkpoint(ROOT / "checkpoints" / "oracle_h1.pt")["meta"]["gait_feedforward"] - gain(ends[1])) < 1e-3
+    assert abs(load_checkpoint(ROOT / "checkpoints" / "oracle_h1_clocked.pt")["meta"]["gait_feedforward"] - gain(ends[1])) < 1e-3
 
 
 def test_the_g1_lego_h_row_is_the_h1_lego_h_row_for_g1():

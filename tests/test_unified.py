@@ -433,12 +433,12 @@ def test_a_newly_registered_perception_network_is_a_student_perception(teacher, 
 
 
 def test_experiment_student_h1_foot_scan_distils_the_oracle_without_feedforward(tmp_path):
-    """student_h1's recipe on checkpoints/oracle_h1_foot_scan.pt: the teacher reads its 222
+    """student_h1's recipe on checkpoints/oracle_h1.pt (the foot-scan oracle): the teacher reads its 222
     scandots (foot scan) and neither acts on a scripted swing."""
     root = RECIPES.parent
     cfg = cfg_of("unified", ["experiment=student_h1_foot_scan", f"checkpoint.dir={tmp_path}"])
     base = cfg_of("unified", ["experiment=student_h1", f"checkpoint.dir={tmp_path}"])
-    assert cfg.teacher == "checkpoints/oracle_h1_foot_scan.pt" and (root / cfg.teacher).is_file()
+    assert cfg.teacher == "checkpoints/oracle_h1.pt" and (root / cfg.teacher).is_file()
     assert cfg.dagger_iters == cfg.hlm.warmup_iters == 3500 and cfg.collector.total_frames == 4500 * 64 * 24
     assert cfg.env == base.env and cfg.student == base.student
     small = cfg_of("unified", ["experiment=student_h1_foot_scan", f"checkpoint.dir={tmp_path}", f"teacher={root / cfg.teacher}",

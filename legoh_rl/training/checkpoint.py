@@ -41,7 +41,8 @@ import torch
 __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
     "CheckpointError", "CheckpointWriteError", "require_training_state", "load_weights", "file_digest",
-    "LEGACY_SAFE_GLOBALS", "WEIGHT_KEYS", "check_finite_weights", "widen_input_columns",
+    "LEGACY_SAFE_GLOBALS", "WEIGHT_KEYS", "check_finite_weights", "widen_input_columns", "RENAMED",
+    "recorded_checkpoint",
 ]
 
 #: The only globals :func:`load_checkpoint` allows beyond torch's weights-only set (tensors, plain
@@ -62,6 +63,44 @@ def file_digest(path: str | os.PathLike) -> str:
     """SHA-256 of a file, hex (identifies a checkpoint: a student's teacher, a branch point, an
     evaluated policy)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+#: Committed checkpoints that took another name after runs had recorded them by path: the path a
+#: record holds -> (the path of that file today, its sha256). ``checkpoints/oracle_h1.pt`` was the
+#: gait-clock oracle until the oracle without the feedforward took its name (issue 52).
+RENAMED = {"checkpoints/oracle_h1.pt": ("checkpoints/oracle_h1_clocked.pt",
+                                        "6f815f70da0d4dd2b107ca40b6b68046c113b864a0599ac707424458396194ff")}
+
+
+def recorded_checkpoint(path: str, digest: str | None = None, root: str | os.PathLike = ".") -> str:
+    """The file a run's record means by ``path`` (a teacher, a warm start), as a path to open.
+
+    With the file's recorded ``digest`` (run states and, since the rename, exports record their
+    teacher's), the file is found by content: ``path`` itself when it still holds those bytes, else
+    the renamed file of :data:`RENAMED`, else any ``*.pt`` beside ``path`` that does; ``path`` when
+    none does (the caller then names the mismatch). Without a digest (records older than
+    the rename), a path in :data:`RENAMED` means its file's name today. Relative paths are read
+    under ``root``; the answer keeps the form of ``path``'s entry (relative stays relative).
+
+    Args:
+        path: the recorded path, e.g. ``"checkpoints/oracle_h1.pt"``.
+        digest: the recorded sha256 (hex) of the file meant, or None.
+        root: the folder relative paths are read from (the repository root).
+    """
+    base = Path(root)
+    here = lambda p: Path(p) if Path(p).is_absolute() else base / p  # noqa: E731
+    renamed = RENAMED.get(str(path))
+    if digest is None:
+        return renamed[0] if renamed else str(path)
+    if here(path).is_file() and file_digest(here(path)) == digest:
+        return str(path)
+    if renamed and renamed[1] == digest:
+        return renamed[0]
+    folder = here(path).parent
+    for other in sorted(folder.glob("*.pt")) if folder.is_dir() else []:
+        if file_digest(other) == digest:
+            return str(Path(path).parent / other.name)
+    return str(path)
 
 
 class CheckpointError(ValueError):
@@ -390,13 +429,17 @@ def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: di
     ``stage``, or ``weights`` naming an average) is written into its meta block, for checkpoints
     trained before runs recorded it. ``weights`` (``{"perception": state dict, "actor": ...}``)
     replaces those entries: a weight average's snapshot
-    (:class:`~legoh_rl.training.weight_average.PolicyAverage`).
+    (:class:`~legoh_rl.training.weight_average.PolicyAverage`). A student's teacher digest
+    (``teacher_sha256``) goes into the meta block, so its teacher is found by content after a
+    rename (:func:`recorded_checkpoint`).
 
     Raises:
         CheckpointError: ``weights`` names an entry the checkpoint does not hold.
     """
     state = load_checkpoint(src)
     slim = {k: state[k] for k in POLICY_KEYS if k in state}
+    if state.get("teacher_sha256"):  # a student's teacher, by content: the path in its config may be renamed
+        slim["meta"] = {**slim.get("meta", {}), "teacher_sha256": state["teacher_sha256"]}
     if provenance:
         slim["meta"] = {**slim.get("meta", {}), **provenance}
     for key, value in (weights or {}).items():
