@@ -52,6 +52,7 @@ from legoh_rl.training.builders import (
     require_count,
 )
 from legoh_rl.training.checkpoint import (
+    RENAMED,
     CheckpointError,
     check_meta,
     file_digest,
@@ -125,10 +126,10 @@ def validate(cfg: DictConfig) -> None:
         raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
     check_recipe_settings(cfg, Path(__file__).parent / "config" / "unified.yaml", SETTINGS)
     check_locomotion(cfg)
-    if cfg.teacher is None:
-        raise ValueError("teacher is required: the oracle checkpoint to distil (recipes/oracle_ppo.py)")
     if not Path(cfg.teacher).is_file():
-        raise FileNotFoundError(f"teacher: no checkpoint at {cfg.teacher}")
+        renamed = RENAMED.get(str(cfg.teacher))
+        raise FileNotFoundError(f"teacher: no checkpoint at {cfg.teacher}"
+                                + (f" (renamed: teacher={renamed[0]})" if renamed else ""))
     ppo_config(cfg.ppo, PPO_OWN)  # the learning rate within the schedule's clamp
     require_count("collector", cfg.collector, "steps_per_env", "total_frames")
     require_count("checkpoint", cfg.checkpoint, "every")

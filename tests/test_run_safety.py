@@ -250,8 +250,9 @@ def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path)
     """A path a run recorded means the file it held then: with the recorded digest, the file holding
     those bytes (the same path, the RENAMED entry, a sibling); without one, RENAMED's name today."""
     root = Path(__file__).resolve().parents[1]
+    for new, digest in RENAMED.values():
+        assert file_digest(root / new) == digest  # the registry names the files' true bytes
     old, (new, digest) = next(iter(RENAMED.items()))
-    assert file_digest(root / new) == digest  # the registry names the file's true bytes
     assert recorded_checkpoint(old) == new  # records older than the rename hold no digest
     assert recorded_checkpoint(old, digest, root) == new
     assert recorded_checkpoint(old, file_digest(root / old), root) == old  # a record made after it
@@ -263,6 +264,9 @@ def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path)
     assert recorded_checkpoint("ck/a.pt", file_digest(tmp_path / "b.pt"), tmp_path) == "ck/a.pt"  # no such folder
     assert recorded_checkpoint(str(tmp_path / "a.pt"), "0" * 64) == str(tmp_path / "a.pt")  # nowhere: as recorded
     assert recorded_checkpoint("elsewhere/x.pt") == "elsewhere/x.pt"
+    with pytest.raises(FileNotFoundError, match=r"no checkpoint at checkpoints/oracle_h1_foot_scan.pt "
+                                                r"\(renamed: teacher=checkpoints/oracle_h1.pt\)"):
+        unified.validate(cfg_of("unified", ["teacher=checkpoints/oracle_h1_foot_scan.pt"]))
 
 
 def test_bad_action_total_survives_a_resume(tmp_path):
