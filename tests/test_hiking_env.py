@@ -237,6 +237,38 @@ def test_depth_refreshes_every_fifth_step():
     assert ticks == [False, False, False, False, True] * 2
 
 
+def test_the_global_perception_clock_ticks_every_world_together_after_a_partial_reset():
+    """perception_clock="global": the 5 steps are counted on the env's step count, so a world reset
+    mid-way ticks at its reset and then with the others, where the episode clock keeps its own phase;
+    the depth frame changes exactly on the ticks."""
+    ticks = {}
+    for clock in ("episode", "global"):
+        env = make(n=3, mode="student", perception_clock=clock)
+        env.reset()
+        for _ in range(2):
+            before = act(env, 0.3 * torch.randn(3, env.A))
+        td = env._reset(TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, batch_size=[3]))
+        assert td["perception_tick"].reshape(-1).tolist() == [False, True, False]
+        assert torch.equal(td["depth"][[0, 2]], before["depth"][[0, 2]])  # the others hold their frame
+        rows, depth = [], td["depth"].clone()
+        for _ in range(8):  # env steps 3 .. 10
+            out = act(env, 0.3 * torch.randn(3, env.A))
+            tick = out["perception_tick"].reshape(-1)
+            changed = (out["depth"] != depth).flatten(1).any(1)
+            assert torch.equal(changed, tick), clock  # a new frame exactly where a tick is
+            depth = out["depth"].clone()
+            rows.append(tick.tolist())
+        ticks[clock] = rows
+    # episode clock: worlds 0 and 2 tick at their episode steps 5 and 10 (env steps 5, 10), world 1
+    # at its episode step 5 (env step 7); global: all three at env steps 5 and 10
+    assert [i + 3 for i, r in enumerate(ticks["episode"]) if r[0]] == [5, 10]
+    assert [i + 3 for i, r in enumerate(ticks["episode"]) if r[1]] == [7]
+    assert [i + 3 for i, r in enumerate(ticks["global"]) if any(r)] == [5, 10]
+    assert all(all(r) or not any(r) for r in ticks["global"])
+    with pytest.raises(ValueError, match="perception_clock"):
+        HikingEnvConfig(perception_clock="camera")
+
+
 def test_scandots_read_a_step():
     step = ([1.25, 0.0, 0.05], [0.75, 2.0, 0.05])  # 10 cm step covering x in [0.5, 2.0]
     env = make(n=1, scene=BoxScene(boxes=[step]), **quiet())

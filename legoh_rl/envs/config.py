@@ -76,6 +76,12 @@ class HikingEnvConfig:
         depth: render the head depth camera (default: off in oracle mode, on otherwise).
         depth_camera: resolution (64x64 default; 128x128 paper), clipping, noise.
         perception_every: control steps per depth frame (5 = 10 Hz at 50 Hz control).
+        perception_clock: whose steps ``perception_every`` counts: ``"episode"`` (each world's
+            own episode, so worlds tick out of step once they reset at different times) or
+            ``"global"`` (the env's step count: every world ticks at once, as one camera clock
+            would, so the student's perception runs once per tick on the whole batch instead of
+            on a fifth of it every step; a reset world renders its first frame besides). Not in
+            the paper; BENCHMARKS.md, "The perception clock".
         num_goals: N anticipated/expert goals exposed (3).
         cmd_speed: commanded walking speed for the tracking reward and curriculum, m/s.
         episode_length_s: training episode timeout (eval: ``eval_episode_length_s``).
@@ -142,6 +148,7 @@ class HikingEnvConfig:
     depth: bool | None = setting(None, Flag(nullable=True))
     depth_camera: DepthCameraConfig = field(default_factory=DepthCameraConfig)
     perception_every: int = setting(5, Integer(1))
+    perception_clock: str = setting("episode", Choice(("episode", "global"), what="perception clock"))
     num_goals: int = setting(3, Integer(1))
     cmd_speed: float = setting(0.8, Number(0, low_open=True))
     episode_length_s: float = setting(20.0, Number(0, low_open=True))

@@ -341,7 +341,7 @@ class HikingEnv(EnvBase):
 
         state, total, terms, episode, flags = st._score_step(diverged)
         self._settle(st.ended_episodes())
-        st.update_tick(self.cfg.perception_every)
+        st.update_tick(self.cfg.perception_every, self.global_steps if self.cfg.perception_clock == "global" else None)
         self._render_depth(st.host_tick)
         st.take_depth(self.depth, st.host_tick)
         obs = st._observations(state)

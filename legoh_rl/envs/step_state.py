@@ -315,9 +315,17 @@ class StepState(StepQuantities):
         if self.host_episode_step is not self.episode_step:
             self.host_episode_step += 1
 
-    def update_tick(self, perception_every: int) -> None:
-        """The perception tick of the step just taken: a depth frame every ``perception_every``
-        control steps of each world's episode (the state's and the host's copy)."""
+    def update_tick(self, perception_every: int, global_step: int | None = None) -> None:
+        """The perception tick of the step just taken (the state's and the host's copy): a depth
+        frame every ``perception_every`` control steps of each world's episode, or, given the
+        env's ``global_step`` count (``perception_clock="global"``), of that count, on every world
+        at once (a world's reset renders its first frame besides)."""
+        if global_step is not None:
+            on = global_step % perception_every == 0
+            self.tick[...] = on
+            if self.host_tick is not self.tick:
+                self.host_tick[...] = on
+            return
         self.tick[...] = self.episode_step % perception_every == 0
         if self.host_tick is not self.tick:
             np.equal(self.host_episode_step % perception_every, 0, out=self.host_tick)
