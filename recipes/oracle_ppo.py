@@ -25,7 +25,6 @@ import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when 
 
 # isort: split
 import math
-from collections import deque
 from pathlib import Path
 
 import hydra
@@ -330,7 +329,6 @@ class OracleTrainer(Trainer):
         # collector.overlap: the minibatch draws' own generator (checkpointed as "minibatch_rng")
         self.generator = (torch.Generator().manual_seed(int(cfg.env.seed))
                           if cfg.collector.get("overlap", False) else None)
-        self.gains: deque[float] = deque()  # the gains of the batches collected and not yet updated on
 
     @property
     def meta(self) -> dict:
@@ -340,7 +338,9 @@ class OracleTrainer(Trainer):
 
     def before_collect(self) -> None:
         set_feedforward(self.env, self.feedforward, self.frames)
-        self.gains.append(self.env.cfg.gait_feedforward)
+
+    def collection_settings(self) -> dict[str, float]:
+        return {"train/gait_feedforward": self.env.cfg.gait_feedforward}
 
     def sync_workers(self, workers, first: bool) -> None:
         """The feedforward gain of the next batch, in every worker's env."""
@@ -350,8 +350,6 @@ class OracleTrainer(Trainer):
         with torch_threads(self.update_threads):  # the physics threads are idle during the update
             stats = ppo_update(data, self.loss, self.gae, self.optim, self.sched, self.actor, self.cfg,
                                self.generator)
-        # the gain the batch was collected with (collector.overlap has set the next batch's already)
-        stats["train/gait_feedforward"] = self.gains.popleft() if self.gains else self.env.cfg.gait_feedforward
         return stats
 
     def state_dict(self) -> dict:

@@ -28,7 +28,6 @@ import legoh_rl.openmp  # noqa: F401  (first: OpenMP's wait policy is read when 
 # isort: split
 import dataclasses
 import functools
-from collections import deque
 from pathlib import Path
 
 import hydra
@@ -278,12 +277,13 @@ class UnifiedTrainer(Trainer):
         # collector.overlap: the update's minibatch and encoder-tick draws (checkpointed as "minibatch_rng")
         self.generator = (torch.Generator().manual_seed(int(cfg.env.seed) + 3)
                           if cfg.collector.get("overlap", False) else None)
-        self.betas: deque[float] = deque()  # the DAgger betas of the batches collected and not yet updated on
 
     def before_collect(self) -> None:
         self.behaviour.beta = beta_at(self.iteration, self.cfg)
         self.behaviour.student_mean = self.iteration < self.cfg.dagger_iters
-        self.betas.append(self.behaviour.beta)
+
+    def collection_settings(self) -> dict[str, float]:
+        return {"train/dagger_beta": self.behaviour.beta}
 
     def refresh_overlap_policy(self, policy) -> None:
         """The student's weights (the teacher's are fixed) and the schedule :meth:`before_collect` set."""
@@ -300,8 +300,6 @@ class UnifiedTrainer(Trainer):
 
     def update(self, data) -> dict[str, float]:
         stats = update(self, data, self.iteration, self.cfg)
-        # the beta the batch was collected with (collector.overlap has set the next batch's already)
-        stats["train/dagger_beta"] = self.betas.popleft() if self.betas else self.behaviour.beta
         stats["train/teacher_acted"] = float(data["teacher_acted"].float().mean())
         return stats
 

@@ -42,6 +42,7 @@ import copy
 import sys
 import time
 from abc import ABC, abstractmethod
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -120,6 +121,12 @@ class Trainer(ABC):
     def before_collect(self) -> None:  # noqa: B027 (optional hook: most trainers have no schedule)
         """Set what the next batch is collected with (schedules over ``frames`` / ``iteration``)."""
 
+    def collection_settings(self) -> dict[str, float]:
+        """The logged figures of what :meth:`before_collect` just set (``{"train/<name>": value}``):
+        the runner takes them then and logs them with the update on that batch, which under
+        ``collector.overlap`` runs after the next batch's settings are already set."""
+        return {}
+
     def sync_workers(self, workers: WorkerEnvs, first: bool) -> None:  # noqa: B027 (optional hook)
         """``collector.workers > 1`` (or ``collector.backend=ray``): tell the worker processes what
         :meth:`before_collect` set for the next batch (``workers.call(path, *args)`` runs a method of
@@ -168,6 +175,23 @@ def train(cfg: DictConfig, validate: Callable[[DictConfig], None], build: Callab
         return _loop(cfg, t, stop, _check_slices(cfg, t, workers, _pooled(cfg, workers)))
 
 
+class _BatchSettings:
+    """Each collected batch's :meth:`Trainer.collection_settings`, oldest first: taken when
+    :meth:`Trainer.before_collect` sets them, handed to the log row of the update on that batch."""
+
+    def __init__(self, t: Trainer) -> None:
+        self.t, self.pending = t, deque()
+
+    def set_next(self) -> None:
+        """The next batch's settings: :meth:`Trainer.before_collect`, then its figures kept."""
+        self.t.before_collect()
+        self.pending.append(dict(self.t.collection_settings()))
+
+    def of_batch(self) -> dict[str, float]:
+        """The figures of the oldest batch not yet updated on (the one the update just used)."""
+        return self.pending.popleft()
+
+
 def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) -> dict:
     ckpt_dir = Path(cfg.checkpoint.dir)
     run = RunLog(cfg, ckpt_dir, t.run_id, t.frames)
@@ -177,7 +201,8 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
         print(f"nothing left to train: {t.frames} of {cfg.collector.total_frames} frames done")
         return {"iteration": t.iteration, "frames": t.frames}
     overlap = collector_overlap(cfg, t)
-    t.before_collect()
+    settings = _BatchSettings(t)
+    settings.set_next()
     threads = torch.get_num_threads()
     policy = t.overlap_policy() if overlap else None
     collector, pool = _collector(cfg, t, frames_per_batch, remaining, reseed, policy)
@@ -185,9 +210,9 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
     bar = tqdm(total=remaining, unit="frames", desc=t.desc)
     try:
         if overlap:
-            summary = _overlapped_loop(t, collector, policy, ends, bar, stop)
+            summary = _overlapped_loop(t, settings, collector, policy, ends, bar, stop)
         else:
-            summary = _sequential_loop(t, collector, pool, ends, bar, stop)
+            summary = _sequential_loop(t, settings, collector, pool, ends, bar, stop)
     finally:
         bar.close()
         collector.shutdown()
@@ -245,7 +270,8 @@ class _IterationEnds:
         return stats
 
 
-def _sequential_loop(t: Trainer, collector, pool: WorkerEnvs | None, ends: _IterationEnds, bar, stop) -> dict:
+def _sequential_loop(t: Trainer, settings: _BatchSettings, collector, pool: WorkerEnvs | None, ends: _IterationEnds,
+                     bar, stop) -> dict:
     """Collect a batch, update on it, in turn."""
     summary: dict = {}
     collected = batch_at = time.perf_counter()
@@ -257,7 +283,7 @@ def _sequential_loop(t: Trainer, collector, pool: WorkerEnvs | None, ends: _Iter
             pool.pull()  # the workers' curriculum and counters, for the logs and the checkpoint
         started = time.perf_counter()
         collect_s = started - collected
-        stats = t.update(data)
+        stats = {**t.update(data), **settings.of_batch()}
         if t.average is not None:  # reads the trained weights only: training is unchanged
             t.average.update()
         collector.update_policy_weights_()  # Ray: the trained policy's weights, sent to every worker
@@ -267,7 +293,7 @@ def _sequential_loop(t: Trainer, collector, pool: WorkerEnvs | None, ends: _Iter
         stats["train/update_s"] = time.perf_counter() - started
         stats["train/collect_s"] = collect_s
         stats["train/iteration_s"] = iteration_s
-        t.before_collect()  # before the checkpoint, so that it holds the settings its resume collects with
+        settings.set_next()  # before the checkpoint, so that it holds the settings its resume collects with
         if pool is not None:
             t.sync_workers(pool, first=False)
         stats = ends.close(data, stats)
@@ -280,7 +306,8 @@ def _sequential_loop(t: Trainer, collector, pool: WorkerEnvs | None, ends: _Iter
     return summary
 
 
-def _overlapped_loop(t: Trainer, collector, policy: torch.nn.Module, ends: _IterationEnds, bar, stop) -> dict:
+def _overlapped_loop(t: Trainer, settings: _BatchSettings, collector, policy: torch.nn.Module, ends: _IterationEnds,
+                     bar, stop) -> dict:
     """``collector.overlap``: batch ``k + 1`` is collected in a thread, by ``policy`` holding the
     weights from before update ``k``, while update ``k`` runs; an iteration whose end is due to
     write the run's state (:meth:`_IterationEnds.due`) collects batch ``k + 1`` after that, with the
@@ -305,7 +332,7 @@ def _overlapped_loop(t: Trainer, collector, policy: torch.nn.Module, ends: _Iter
         figures = ends.run.env_figures(t.env)  # before the env moves on to the next batch
         k, frames = t.iteration, t.frames
         t.iteration, t.frames = k + 1, frames + n  # the next batch's settings, at the counters it is collected at
-        t.before_collect()
+        settings.set_next()
         t.iteration, t.frames = k, frames
         overlapped = not ends.due(k + 1) and stop.signum is None
         if overlapped:
@@ -313,7 +340,7 @@ def _overlapped_loop(t: Trainer, collector, policy: torch.nn.Module, ends: _Iter
             prefetch = Prefetch(iterator)
         started = time.perf_counter()
         try:
-            stats = t.update(data)
+            stats = {**t.update(data), **settings.of_batch()}
             update_s = time.perf_counter() - started
         finally:
             if overlapped:  # never leave the thread running
