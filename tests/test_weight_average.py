@@ -15,7 +15,7 @@ from legoh_rl.training.checkpoint import (
     load_checkpoint,
     save_checkpoint,
 )
-from legoh_rl.training.weight_average import PolicyAverage
+from legoh_rl.training.weight_average import PolicyAverage, saved_average
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_unified import teacher, tiny  # noqa: E402, F401  (the module-scoped tiny oracle)
@@ -91,3 +91,37 @@ def test_a_run_with_the_average_trains_exactly_as_without_and_snapshots_it(teach
                                "dagger_iters=10", "checkpoint.ema_decay=0.5", "checkpoint.resume=auto"))
     assert again["iteration"] == 4
     assert int(load_checkpoint(tmp_path / "ema" / "last.pt")["weight_average"]["state"]["n_averaged"]) == 4
+
+
+def test_the_run_end_is_snapshotted_and_its_saved_average_exports(teacher, tmp_path):  # noqa: F811
+    # three iterations of 40 frames, snapshots every 2: iteration 2 by the schedule, 3 as the run's end
+    unified.train(tiny(teacher, tmp_path / "run", "collector.total_frames=120", "checkpoint.snapshot_every=2",
+                       "dagger_iters=10", "checkpoint.ema_decay=0.5"))
+    snaps = tmp_path / "run" / "snapshots"
+    assert sorted(p.name for p in snaps.glob("*.pt")) == ["frames000000080.pt", "frames000000120.pt"]
+    assert sorted(p.name for p in (snaps / "ema").glob("*.pt")) == ["frames000000080.pt", "frames000000120.pt"]
+    end = load_checkpoint(snaps / "ema" / "frames000000120.pt")
+    # the training checkpoint's saved average, exported afterwards, is that same end snapshot
+    exported = load_checkpoint(export_policy(tmp_path / "run" / "last.pt", tmp_path / "avg.pt", average=True))
+    assert exported["meta"]["weights"] == "ema 0.5"
+    for key in ("perception", "actor"):
+        assert sorted(exported[key]) == sorted(end[key])
+        assert all(torch.equal(exported[key][k], end[key][k]) for k in end[key])
+    raw = load_checkpoint(tmp_path / "run" / "last.pt")
+    assert any(not torch.equal(raw["actor"][k], exported["actor"][k]) for k in raw["actor"]
+               if raw["actor"][k].is_floating_point()), "the average, not the raw weights"
+    # a slim policy carries no average: refused, naming the file
+    with pytest.raises(CheckpointError, match="avg.pt holds no weight average"):
+        export_policy(tmp_path / "avg.pt", tmp_path / "again.pt", average=True)
+    with pytest.raises(CheckpointError, match="weights or average, not both"):
+        export_policy(tmp_path / "run" / "last.pt", tmp_path / "x.pt", weights={}, average=True)
+
+
+def test_saved_average_splits_the_averaged_model_by_network_key():
+    avg = PolicyAverage({"actor": _linear(2.0), "perception": _linear(5.0)}, decay=0.5)
+    assert saved_average({"weight_average": avg.state_dict()}) is None, "no update yet: no average"
+    avg.update()
+    got = saved_average({"weight_average": avg.state_dict()})
+    assert set(got) == {"actor", "perception"} and set(got["actor"]) == {"weight", "bias"}
+    assert got["actor"]["weight"].item() == 2.0 and got["perception"]["bias"].item() == -5.0
+    assert saved_average({}) is None

@@ -38,6 +38,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from legoh_rl.training.weight_average import saved_average
+
 __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
     "CheckpointError", "CheckpointWriteError", "require_training_state", "load_weights", "file_digest",
@@ -424,7 +426,7 @@ POLICY_KEYS = ("meta", "oracle_config", "networks", "perception", "actor", "conf
 
 
 def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: dict | None = None,
-                  weights: dict | None = None) -> Path:
+                  weights: dict | None = None, average: bool = False) -> Path:
     """Write a slim copy of a training checkpoint: the policy without optimisers, env or RNG state.
 
     The result loads wherever the full checkpoint does for inference (``evaluate.py``, or as the
@@ -434,12 +436,23 @@ def export_policy(src: str | os.PathLike, dst: str | os.PathLike, provenance: di
     replaces those entries: a weight average's snapshot
     (:class:`~legoh_rl.training.weight_average.PolicyAverage`). A student's teacher digest
     (``teacher_sha256``) goes into the meta block, so its teacher is found by content after a
-    rename (:func:`recorded_checkpoint`).
+    rename (:func:`recorded_checkpoint`). ``average``: the weights are the moving average the
+    training checkpoint saved (``checkpoint.ema_decay``), e.g. of a run's end between snapshots.
 
     Raises:
-        CheckpointError: ``weights`` names an entry the checkpoint does not hold.
+        CheckpointError: ``weights`` names an entry the checkpoint does not hold; ``average`` for a
+            checkpoint without a weight average (or with ``weights`` too).
     """
     state = load_checkpoint(src)
+    if average:
+        if weights is not None:
+            raise CheckpointError("export_policy: pass weights or average, not both")
+        weights = saved_average(state)
+        if weights is None:
+            raise CheckpointError(f"{src} holds no weight average (its run had no checkpoint.ema_decay, "
+                                  "or it is already a slim policy): export it without --weights average")
+        decay = state["weight_average"]["decay"]
+        provenance = {"weights": f"ema {decay}", **(provenance or {})}
     slim = {k: state[k] for k in POLICY_KEYS if k in state}
     if state.get("teacher_sha256"):  # a student's teacher, by content: the path in its config may be renamed
         slim["meta"] = {**slim.get("meta", {}), "teacher_sha256": state["teacher_sha256"]}

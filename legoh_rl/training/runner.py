@@ -30,7 +30,8 @@ once:
   ``<checkpoint.dir>/snapshots/frames<run frames>.pt``: the learning curve's points, evaluated
   later on the benchmark (``recipes/evaluate.py``); with ``checkpoint.ema_decay`` the trainer's
   weight average (:mod:`~legoh_rl.training.weight_average`, updated after every iteration) goes
-  beside it to ``snapshots/ema/``;
+  beside it to ``snapshots/ema/``; a run that reaches ``collector.total_frames`` also snapshots
+  its last iteration when that was not a multiple (the trained policy's end is a curve point too);
 * every ``logger.video_every`` iterations (0: never), a video of the checkpoint's policy, one
   robot per category at the worlds' median level (:func:`~legoh_rl.training.videos.policy_video`),
   goes to ``<checkpoint.dir>/videos/`` and the wandb run.
@@ -217,7 +218,7 @@ def _loop(cfg: DictConfig, t: Trainer, stop: GracefulStop, reseed: bool | None) 
         bar.close()
         collector.shutdown()
         torch.set_num_threads(threads)  # torchrl's multi-process collector changes the main process's count
-    summary["checkpoint"] = str(ends.checkpoint())
+    summary["checkpoint"] = str(ends.finish(summary))
     run.close()
     return summary
 
@@ -242,6 +243,26 @@ class _IterationEnds:
         self.run.flush()  # the logs hold what the checkpoint covers
         return path
 
+    def snapshot(self) -> Path:
+        """Write the policy of ``last.pt`` (which must hold the current iteration) to
+        ``snapshots/frames<N>.pt``, and the weight average's to ``snapshots/ema/`` when the run keeps one."""
+        t, ckpt_dir = self.t, self.dir
+        name = f"frames{t.frames:09d}.pt"
+        path = export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / name)
+        if t.average is not None:
+            export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / "ema" / name,
+                          provenance={"weights": f"ema {t.average.decay}"}, weights=t.average.policy_state())
+        return path
+
+    def finish(self, summary: dict) -> Path:
+        """The run's last checkpoint; a run that reached ``collector.total_frames`` (not stopped by a
+        signal) also gets its end snapshot when snapshots are on and its last iteration wrote none,
+        so the trained policy's end is evaluated like every snapshot before it."""
+        path = self.checkpoint()
+        if self.snapshot_every and self.t.iteration % self.snapshot_every and "interrupted" not in summary:
+            self.snapshot()
+        return path
+
     def due(self, iteration: int) -> bool:
         """Whether iteration ``iteration``'s end writes anything from the run's state (checkpoint,
         snapshot or video): the overlapped loop collects nothing beside such an iteration's update."""
@@ -257,11 +278,7 @@ class _IterationEnds:
         if self.snapshot_every and t.iteration % self.snapshot_every == 0:  # the policy as it was, for later evaluation
             if t.iteration % self.every:
                 self.checkpoint()
-            name = f"frames{t.frames:09d}.pt"
-            export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / name)
-            if t.average is not None:
-                export_policy(ckpt_dir / "last.pt", ckpt_dir / "snapshots" / "ema" / name,
-                              provenance={"weights": f"ema {t.average.decay}"}, weights=t.average.policy_state())
+            self.snapshot()
         if self.video_every and t.iteration % self.video_every == 0:
             path = self.checkpoint() if t.iteration % self.every else ckpt_dir / "last.pt"
             self.run.video(policy_video(path, ckpt_dir / "videos" / f"iteration{t.iteration:06d}.mp4",

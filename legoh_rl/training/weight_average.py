@@ -21,7 +21,7 @@ import torch
 from torch import nn
 from torch.optim.swa_utils import AveragedModel, get_ema_multi_avg_fn
 
-__all__ = ["PolicyAverage"]
+__all__ = ["PolicyAverage", "saved_average"]
 
 
 class PolicyAverage:
@@ -78,3 +78,22 @@ class PolicyAverage:
             raise ValueError(f"the checkpoint's weight average has decay {state['decay']}, this run's "
                              f"checkpoint.ema_decay is {self.decay}: resume with the same value")
         self.average.load_state_dict(state["state"])
+
+
+def saved_average(state: Mapping) -> dict[str, dict[str, torch.Tensor]] | None:
+    """The averaged weights a training checkpoint holds (``state["weight_average"]``, written from
+    :meth:`PolicyAverage.state_dict`), as ``{checkpoint key: state dict}`` like
+    :meth:`PolicyAverage.policy_state`; ``None`` when the run kept no average or it saw no update.
+
+    No networks are built: the ``module.<key>.<name>`` entries of the averaged model are split by key.
+    """
+    saved = state.get("weight_average")
+    if not saved or int(saved["state"].get("n_averaged", 0)) == 0:
+        return None
+    out: dict[str, dict[str, torch.Tensor]] = {}
+    for name, value in saved["state"].items():
+        if name == "n_averaged":
+            continue
+        key, _, rest = name.removeprefix("module.").partition(".")
+        out.setdefault(key, {})[rest] = value
+    return out
