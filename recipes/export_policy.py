@@ -22,7 +22,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from legoh_rl.training.checkpoint import CheckpointError, export_policy
+from legoh_rl.training.checkpoint import export_policy
 
 
 def main() -> None:
@@ -49,10 +49,7 @@ def main() -> None:
         for name, out in outs.items():
             print(f"{args.src} -> {out} ({name}, {out.stat().st_size / 1e6:.2f} MB)")
         return
-    try:
-        out = export_policy(args.src, args.dst, provenance, average=args.weights == "average")
-    except CheckpointError as err:
-        raise SystemExit(f"error: {err}") from None
+    out = export_policy(args.src, args.dst, provenance, average=args.weights == "average")
     print(f"{args.src} ({args.src.stat().st_size / 1e6:.2f} MB) -> {out} ({out.stat().st_size / 1e6:.2f} MB)")
 
 

@@ -542,7 +542,7 @@ def test_imitation_gap_labels_the_students_own_states_with_the_teacher():
     from legoh_rl.training.policies import load_cell_policy
 
     ck = RECIPES.parent / "checkpoints"
-    student, teacher = str(ck / "student_h1.pt"), str(ck / "oracle_h1_clocked.pt")  # its teacher
+    student, teacher = str(ck / "student_h1.pt"), str(ck / "oracle_h1.pt")  # its teacher
     out = ig.imitation_gap(student, teacher, robots=2, seconds=0.3, variants=2)
     assert out["diff"].shape == (15, 2, 10) and np.isfinite(out["diff"]).all()
     env, policy, _, base = load_cell_policy(student, "randommix", 0, 2, 0, 2)
@@ -913,11 +913,11 @@ def test_eval_protocol_refuses_bad_cells_naming_them(kwargs, message):
 
 
 def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, capsys):
-    """recipes/provenance.py: the committed student's experiment, its command, its teacher's own
-    lineage, and the resolved config it trained with."""
+    """recipes/provenance.py: a committed student's experiment, its command, its teacher's own
+    lineage (a renamed teacher followed), and the resolved config it trained with."""
     import provenance
 
-    assert provenance.main([str(ROOT / "checkpoints" / "student_h1.pt"), "--config"]) == 0
+    assert provenance.main([str(ROOT / "checkpoints" / "student_h1_clocked.pt"), "--config"]) == 0
     out = capsys.readouterr().out
     assert "experiment student_h1: student_h1.yaml <- student_h1_trails.yaml" in out
     assert "trained by: python recipes/unified.py experiment=student_h1 checkpoint.resume=auto" in out
@@ -927,6 +927,11 @@ def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, caps
     assert "resolved config:" in out and "dagger_iters: 5000" in out
     # recorded in the old layout of the env section, printed in today's (upgrade_recorded_config)
     assert "  depth_camera:\n" in out and "  timestep: 0.005" in out and "depth_source" not in out
+    # today's student_h1.pt: the foot-scan oracle's student, its teacher recorded by its pre-rename name
+    assert provenance.main([str(ROOT / "checkpoints" / "student_h1.pt")]) == 0
+    out = capsys.readouterr().out
+    assert "experiment student_h1_foot_scan: student_h1_foot_scan.yaml <- student_h1.yaml" in out
+    assert "teacher:\n    checkpoints/oracle_h1.pt\n" in out and "experiment oracle_h1_foot_scan:" in out
     assert provenance.experiment_chain("student_g1") == ["student_g1", "student_h1", "student_h1_trails"]
     changed, added = provenance.differences({"a": 1, "b": {"c": 2}, "gone": 0}, {"a": 1, "b": {"c": 3, "d": 4}})
     assert changed == ["b.c: recorded 2, today 3", "gone: recorded 0, today '<no longer a setting>'"]
