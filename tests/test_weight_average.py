@@ -1,6 +1,7 @@
 """The weights' moving average behind ``checkpoint.ema_decay``: its arithmetic on hand-made
 weights, its checks, and a unified run with it that trains exactly as one without it."""
 
+import importlib
 import json
 import sys
 from pathlib import Path
@@ -107,6 +108,15 @@ def test_the_run_end_is_snapshotted_and_its_saved_average_exports(teacher, tmp_p
     for key in ("perception", "actor"):
         assert sorted(exported[key]) == sorted(end[key])
         assert all(torch.equal(exported[key][k], end[key][k]) for k in end[key])
+    # the recipe's command line: --weights average writes the same file
+    argv = sys.argv
+    try:
+        sys.argv = ["export_policy.py", str(tmp_path / "run" / "last.pt"), str(tmp_path / "cli.pt"), "--weights", "average"]
+        importlib.import_module("export_policy").main()
+    finally:
+        sys.argv = argv
+    cli = load_checkpoint(tmp_path / "cli.pt")
+    assert cli["meta"]["weights"] == "ema 0.5" and all(torch.equal(cli["actor"][k], end["actor"][k]) for k in end["actor"])
     raw = load_checkpoint(tmp_path / "run" / "last.pt")
     assert any(not torch.equal(raw["actor"][k], exported["actor"][k]) for k in raw["actor"]
                if raw["actor"][k].is_floating_point()), "the average, not the raw weights"
