@@ -13,7 +13,13 @@ read from the table's file name (``...frames<digits>...``, as the runner names s
 
 ``--rate`` gives each series its env steps/s as measured on an idle machine
 (``benchmarks/training_throughput.py``): the hours axis is then env steps / rate, which compares
-runs that shared their machine with other work. Without it only the env-steps panels are drawn.
+runs that shared their machine with other work. An entry may instead be the run's directory: each
+snapshot is then placed at the run's own training hours when it was taken (its ``metrics.jsonl``,
+the iterations' seconds summed as ``plot_curves.py --x hours`` sums them). Without ``--rate`` only
+the env-steps panels are drawn.
+
+    python recipes/plot_benchmark.py --series "foot-scan student" docs/history/evals/student_h1_foot_scan_ema_*.csv \
+        --series "student_h1, 1 h" docs/history/evals/student_h1_1h_ema_*.csv --rate runs/student_h1_foot_scan 543 -o x.png
 """
 
 from __future__ import annotations
@@ -21,12 +27,14 @@ from __future__ import annotations
 import argparse
 import csv
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from plot_curves import load, training_hours  # noqa: E402  (a sibling recipe: the same hours as its --x hours)
 
 METRICS = (("success", "success rate (%)"), ("trail_completion", "trail completion (%)"))
 _FRAMES = re.compile(r"frames(\d+)")
@@ -62,7 +70,36 @@ def read_point(path: Path, frames: int | None = None) -> tuple[int, dict[str, tu
     return frames, point
 
 
-def plot(series: dict[str, list[tuple[int, dict]]], out: Path, rates: dict[str, float] | None = None,
+def run_hours(run_dir: Path) -> Callable[[int], float]:
+    """``frames -> training hours`` of a run when its iteration ending at those env steps closed
+    (the run's ``metrics.jsonl``; :func:`plot_curves.training_hours`).
+
+    Raises:
+        ValueError: no ``metrics.jsonl`` in ``run_dir`` (names it); the returned function, for env
+            steps at which no iteration of the run ended (names both).
+    """
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.is_file():
+        raise ValueError(f"--rate {run_dir}: no metrics.jsonl there (a number or a run directory)")
+    rows = load(path)
+    at = {int(r["step"]): h for r, h in zip(rows, training_hours(rows), strict=True)}
+
+    def hours(frames: int) -> float:
+        if frames not in at:
+            raise ValueError(f"{path}: no iteration ended at {frames} env steps (the snapshot is of another run?)")
+        return at[frames]
+
+    return hours
+
+
+def hours_of(steps: list[int], rate: float | Callable[[int], float]) -> list[float]:
+    """The hours axis of a series' points: env steps over an env steps/s, or a run's own hours
+    (a function from :func:`run_hours`)."""
+    return [rate(f) for f in steps] if callable(rate) else [f / rate / 3600 for f in steps]
+
+
+def plot(series: dict[str, list[tuple[int, dict]]], out: Path,
+         rates: dict[str, float | Callable[[int], float]] | None = None,
          reference: tuple[float, str] | None = None, title: str | None = None) -> Path:
     """Draw success and trail completion (mean ± std error bars) against env steps, and against
     hours when ``rates`` gives each series its env steps/s.
@@ -70,7 +107,8 @@ def plot(series: dict[str, list[tuple[int, dict]]], out: Path, rates: dict[str, 
     Args:
         series: label -> points from :func:`read_point` (any order; drawn sorted by env steps).
         out: the PNG to write.
-        rates: label -> env steps/s, or None (env-steps panels only).
+        rates: label -> env steps/s, or a ``frames -> hours`` function (:func:`run_hours`); None:
+            env-steps panels only.
         reference: ``(success, label)``: a horizontal line on the success panels.
         title: the figure's title.
 
@@ -84,7 +122,7 @@ def plot(series: dict[str, list[tuple[int, dict]]], out: Path, rates: dict[str, 
         steps = [p[0] for p in points]
         xs = [(steps, "env steps (M)", 1e-6)]
         if rates:
-            xs.append((steps, "training hours (env steps / idle env steps/s)", 1.0 / rates[label] / 3600))
+            xs.append((hours_of(steps, rates[label]), "training hours (each run's own, or env steps / idle env steps/s)", 1.0))
         for row, (metric, name) in enumerate(METRICS):
             mean = [p[1][metric][0] for p in points]
             std = [p[1][metric][1] for p in points]
@@ -111,8 +149,9 @@ def main(argv: list[str] | None = None) -> Path:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--series", nargs="+", action="append", required=True, metavar=("LABEL", "CSV"),
                         help="a label, then the table.csv of each evaluated snapshot")
-    parser.add_argument("--rate", type=float, nargs="+", default=None, metavar="STEPS_PER_S",
-                        help="one idle env steps/s per series: adds the hours panels")
+    parser.add_argument("--rate", nargs="+", default=None, metavar="STEPS_PER_S_OR_RUN",
+                        help="one per series: its idle env steps/s, or its run directory (the run's own "
+                             "training hours at each snapshot); adds the hours panels")
     parser.add_argument("--reference", nargs=2, default=None, metavar=("SR", "LABEL"),
                         help="a success rate to draw as a line, and its label")
     parser.add_argument("--title", default=None)
@@ -126,9 +165,20 @@ def main(argv: list[str] | None = None) -> Path:
         parser.error(f"--series labels must differ, got {labels}")
     rates = None
     if args.rate is not None:
-        if len(args.rate) != len(labels) or any(r <= 0 for r in args.rate):
-            parser.error(f"--rate needs one positive env steps/s per series ({len(labels)}), got {args.rate}")
-        rates = dict(zip(labels, args.rate, strict=True))
+        if len(args.rate) != len(labels):
+            parser.error(f"--rate needs one entry per series ({len(labels)}), got {args.rate}")
+        rates = {}
+        for label, entry in zip(labels, args.rate, strict=True):
+            try:
+                rates[label] = float(entry)
+            except ValueError:
+                try:
+                    rates[label] = run_hours(Path(entry))
+                except ValueError as err:
+                    parser.error(str(err))
+                continue
+            if rates[label] <= 0:
+                parser.error(f"--rate needs positive env steps/s or a run directory, got {entry}")
     reference = None
     if args.reference is not None:
         try:

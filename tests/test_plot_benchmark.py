@@ -1,5 +1,6 @@
 """recipes/plot_benchmark.py: evaluation tables read as curve points, the figure, bad input."""
 
+import json
 import sys
 from pathlib import Path
 
@@ -50,11 +51,30 @@ def test_the_figure_has_hours_panels_with_rates(tmp_path):
 
 @pytest.mark.parametrize("argv, message", [
     (["--series", "only-a-label"], "needs a label and at least one table.csv"),
-    (["--series", "a", "X", "--rate", "1", "2"], "one positive env steps/s per series"),
-    (["--series", "a", "X", "--rate", "-5"], "one positive env steps/s per series"),
+    (["--series", "a", "X", "--rate", "1", "2"], "one entry per series (1)"),
+    (["--series", "a", "X", "--rate", "-5"], "positive env steps/s or a run directory, got -5"),
+    (["--series", "a", "X", "--rate", "no/such/run"], "--rate no/such/run: no metrics.jsonl there"),
     (["--series", "a", "X", "--series", "a", "Y"], "labels must differ"),
 ])
 def test_bad_arguments_are_refused_by_name(tmp_path, argv, message, capsys):
     with pytest.raises(SystemExit):
         plot_benchmark.main([*argv, "-o", str(tmp_path / "x.png")])
     assert message in capsys.readouterr().err
+
+
+def test_a_run_directory_places_each_snapshot_at_the_runs_own_hours(tmp_path):
+    """Hours from the run's log: the iterations' seconds summed up to the snapshot's env steps,
+    not env steps over an average rate (a run's early iterations may be faster than its mean)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    rows = [{"step": 100, "train/iteration_s": 900.0}, {"step": 200, "train/iteration_s": 900.0},
+            {"step": 300, "train/iteration_s": 3600.0}]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    hours = plot_benchmark.run_hours(run)
+    assert plot_benchmark.hours_of([200, 300], hours) == [0.5, 1.5]
+    assert plot_benchmark.hours_of([1800, 3600], 1.0) == [0.5, 1.0]  # a rate: env steps / (steps/s) / 3600
+    with pytest.raises(ValueError, match=r"metrics\.jsonl: no iteration ended at 250 env steps"):
+        hours(250)
+    points = [table(tmp_path / f"s_frames{f:09d}.csv", 50.0, 40.0) for f in (100, 300)]
+    out = plot_benchmark.main(["--series", "s", *map(str, points), "--rate", str(run), "-o", str(tmp_path / "h.png")])
+    assert out.stat().st_size > 10_000
