@@ -34,7 +34,8 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from plot_curves import load, training_hours  # noqa: E402  (a sibling recipe: the same hours as its --x hours)
+
+from legoh_rl.training.run_log import read_metrics, training_hours  # noqa: E402
 
 METRICS = (("success", "success rate (%)"), ("trail_completion", "trail completion (%)"))
 _FRAMES = re.compile(r"frames(\d+)")
@@ -72,7 +73,7 @@ def read_point(path: Path, frames: int | None = None) -> tuple[int, dict[str, tu
 
 def run_hours(run_dir: Path) -> Callable[[int], float]:
     """``frames -> training hours`` of a run when its iteration ending at those env steps closed
-    (the run's ``metrics.jsonl``; :func:`plot_curves.training_hours`).
+    (the run's ``metrics.jsonl``; :func:`~legoh_rl.training.run_log.training_hours`).
 
     Raises:
         ValueError: no ``metrics.jsonl`` in ``run_dir`` (names it); the returned function, for env
@@ -81,7 +82,7 @@ def run_hours(run_dir: Path) -> Callable[[int], float]:
     path = Path(run_dir) / "metrics.jsonl"
     if not path.is_file():
         raise ValueError(f"--rate {run_dir}: no metrics.jsonl there (a number or a run directory)")
-    rows = load(path)
+    rows = read_metrics(path)
     at = {int(r["step"]): h for r, h in zip(rows, training_hours(rows), strict=True)}
 
     def hours(frames: int) -> float:

@@ -25,13 +25,15 @@ CPU run's in time to the same success rate.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+
+from legoh_rl.training.run_log import read_metrics as load  # noqa: E402
+from legoh_rl.training.run_log import training_hours  # noqa: E402
 
 PANELS = [
     ("reward/total", "reward per step"),
@@ -71,11 +73,6 @@ TRAIL_PANELS = [
 PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS, "student": STUDENT_PANELS, "trails": TRAIL_PANELS}
 
 
-def load(path: Path) -> list[dict]:
-    """The rows of a metrics.jsonl file."""
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
 def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[float]]:
     """Rows of resumed stages as one run, and the step at which each later stage starts."""
     rows: list[dict] = []
@@ -88,34 +85,6 @@ def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[float]]:
             rows = [r for r in rows if r["step"] < stage[0]["step"]]
         rows.extend(stage)
     return rows, starts
-
-
-def training_hours(rows: list[dict]) -> list[float]:
-    """Hours of training up to and including each row (one row per iteration): the running sum of
-    the iterations' ``train/iteration_s`` (from one batch in hand to the next: with
-    ``collector.overlap`` collection and update overlap), or of their ``train/collect_s`` +
-    ``train/update_s`` for rows logged before it existed; start-ups not counted. A row logged
-    before ``train/collect_s`` existed counts its frames over the run's rate at that row
-    (``train/fps_total``, the mean since its session started).
-
-    Raises:
-        ValueError: a row with neither (names its step).
-    """
-    out, total = [], 0.0
-    for i, r in enumerate(rows):
-        if r.get("train/iteration_s") is not None:
-            total += float(r["train/iteration_s"])
-        elif r.get("train/collect_s") is not None and r.get("train/update_s") is not None:
-            total += float(r["train/collect_s"]) + float(r["train/update_s"])
-        elif r.get("train/fps_total"):
-            batch = (r["step"] - rows[i - 1]["step"] if i > 0
-                     else rows[1]["step"] - r["step"] if len(rows) > 1 else r["step"])
-            total += batch / float(r["train/fps_total"])
-        else:
-            raise ValueError(f"row at step {r.get('step')} has no train/collect_s and train/update_s (nor "
-                             "train/fps_total): --x hours needs a run that logged its iteration times")
-        out.append(total / 3600.0)
-    return out
 
 
 def with_hours(rows: list[dict]) -> list[dict]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
@@ -18,7 +19,7 @@ from legoh_rl.training.stats import (
     split_episode_stats,
 )
 
-__all__ = ["RunLog"]
+__all__ = ["RunLog", "read_metrics", "training_hours"]
 
 
 class RunLog:
@@ -124,3 +125,36 @@ class RunLog:
         exp = getattr(self.logger, "experiment", None)
         if exp is not None and hasattr(exp, "finish"):
             exp.finish()
+
+
+def read_metrics(path: str | Path) -> list[dict]:
+    """The rows of a run's ``metrics.jsonl`` (one dict per logged iteration, ``step`` = env steps)."""
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+def training_hours(rows: list[dict]) -> list[float]:
+    """Hours of training up to and including each row (one row per iteration): the running sum of
+    the iterations' ``train/iteration_s`` (from one batch in hand to the next: with
+    ``collector.overlap`` collection and update overlap), or of their ``train/collect_s`` +
+    ``train/update_s`` for rows logged before it existed; start-ups not counted. A row logged
+    before ``train/collect_s`` existed counts its frames over the run's rate at that row
+    (``train/fps_total``, the mean since its session started).
+
+    Raises:
+        ValueError: a row with neither (names its step).
+    """
+    out, total = [], 0.0
+    for i, r in enumerate(rows):
+        if r.get("train/iteration_s") is not None:
+            total += float(r["train/iteration_s"])
+        elif r.get("train/collect_s") is not None and r.get("train/update_s") is not None:
+            total += float(r["train/collect_s"]) + float(r["train/update_s"])
+        elif r.get("train/fps_total"):
+            batch = (r["step"] - rows[i - 1]["step"] if i > 0
+                     else rows[1]["step"] - r["step"] if len(rows) > 1 else r["step"])
+            total += batch / float(r["train/fps_total"])
+        else:
+            raise ValueError(f"row at step {r.get('step')} has no train/collect_s and train/update_s (nor "
+                             "train/fps_total): training hours need a run that logged its iteration times")
+        out.append(total / 3600.0)
+    return out
