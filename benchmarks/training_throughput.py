@@ -36,7 +36,6 @@ import legoh_rl.openmp  # noqa: F401  (first, as in the recipes: OpenMP's wait p
 
 # isort: split
 import argparse
-import json
 import sys
 import tempfile
 import time
@@ -49,6 +48,7 @@ from legoh_rl.envs import HikingEnv, HikingEnvConfig
 from legoh_rl.training.builders import policy_env_kwargs
 from legoh_rl.training.checkpoint import load_checkpoint
 from legoh_rl.training.config_store import env_config
+from legoh_rl.training.run_log import read_metrics, training_hours
 
 ROOT = Path(__file__).resolve().parents[1]
 RECIPES = ROOT / "recipes"
@@ -81,10 +81,9 @@ def timed_frames(run_dir: Path) -> tuple[int, float]:
     ``train/iteration_s`` (from one batch in hand to the next) where the run logged it, else its
     collection + update seconds. With ``collector.overlap`` the two overlap, so only the former
     counts them right."""
-    rows = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines()]
-    return rows[-1]["step"] - rows[0]["step"], sum(
-        r["train/iteration_s"] if "train/iteration_s" in r else r["train/collect_s"] + r["train/update_s"]
-        for r in rows[1:])
+    rows = read_metrics(run_dir / "metrics.jsonl")
+    hours = training_hours(rows)
+    return rows[-1]["step"] - rows[0]["step"], (hours[-1] - hours[0]) * 3600.0
 
 
 def training_rate(run_dir: Path) -> tuple[float, int]:
