@@ -150,7 +150,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("student_h1_foot_scan", "checkpoints/student_h1.pt"),
             ("oracle_h1_footholds", "checkpoints/oracle_h1_clocked.pt"),
             ("oracle_h1_foot_scan", "checkpoints/oracle_h1.pt"),
-            ("oracle_g1_trails", "checkpoints/oracle_g1_trails.pt"),
+            ("oracle_g1_trails", "checkpoints/oracle_g1_trails_clocked.pt"),
+            ("oracle_g1_foot_scan", "checkpoints/oracle_g1_trails.pt"),
             ("g1_lego_h", "checkpoints/student_g1.pt")]
 SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
             "unified": ("env", "ppo", "student", "dagger_iters", "dagger_beta0", "dagger_decay_iters", "dagger_epochs",
@@ -234,7 +235,7 @@ def test_the_g1_trail_oracle_is_the_h1_oracles_two_runs_as_one_schedule():
 def test_the_g1_lego_h_row_is_the_h1_lego_h_row_for_g1():
     g1 = OmegaConf.to_container(cfg_of("unified", ["experiment=g1_lego_h"]), resolve=True)
     h1 = OmegaConf.to_container(cfg_of("unified", ["experiment=h1_lego_h_seed", "env.seed=0"]), resolve=True)
-    assert g1["teacher"] == "checkpoints/oracle_g1_trails.pt" and g1["env"]["robot"] == "g1"
+    assert g1["teacher"] == "checkpoints/oracle_g1_trails_clocked.pt" and g1["env"]["robot"] == "g1"
     assert {k: v for k, v in g1["env"].items() if k != "robot"} == {k: v for k, v in h1["env"].items() if k != "robot"}
     for key in ("student", "hlm", "collector", "dagger_iters", "dagger_replay", "ppo", "imitation"):
         assert g1[key] == h1[key], key

@@ -432,18 +432,22 @@ def test_a_newly_registered_perception_network_is_a_student_perception(teacher, 
     assert load_checkpoint(tmp_path / "ck" / "last.pt")["meta"]["perception"] == "mine"
 
 
-def test_experiment_student_h1_foot_scan_distils_the_oracle_without_feedforward(tmp_path):
-    """student_h1's recipe on checkpoints/oracle_h1.pt (the foot-scan oracle): the teacher reads its 222
-    scandots (foot scan) and neither acts on a scripted swing."""
+@pytest.mark.parametrize("name,teacher,robot", [("student_h1_foot_scan", "checkpoints/oracle_h1.pt", "h1"),
+                                                ("student_g1_foot_scan", "checkpoints/oracle_g1_trails.pt", "g1")])
+def test_experiment_foot_scan_students_distil_the_oracles_without_feedforward(tmp_path, name, teacher, robot):
+    """student_h1's recipe on the oracles without the gait feedforward (oracle_h1.pt, oracle_g1_trails.pt):
+    the teacher reads its 222 scandots (foot scan), neither acts on a scripted swing, and the G1 student
+    keeps the H1 one's schedule and student with only the robot changed."""
     root = RECIPES.parent
-    cfg = cfg_of("unified", ["experiment=student_h1_foot_scan", f"checkpoint.dir={tmp_path}"])
-    base = cfg_of("unified", ["experiment=student_h1", f"checkpoint.dir={tmp_path}"])
-    assert cfg.teacher == "checkpoints/oracle_h1.pt" and (root / cfg.teacher).is_file()
+    cfg = cfg_of("unified", [f"experiment={name}", f"checkpoint.dir={tmp_path}"])
+    base = cfg_of("unified", ["experiment=student_h1", f"checkpoint.dir={tmp_path}", f"env.robot={robot}"])
+    assert cfg.teacher == teacher and (root / cfg.teacher).is_file()
+    assert load_checkpoint(root / teacher)["meta"]["robot"] == robot == cfg.env.robot
     assert cfg.dagger_iters == cfg.hlm.warmup_iters == 3500 and cfg.collector.total_frames == 4500 * 64 * 24
     assert cfg.env == base.env and cfg.student == base.student
-    small = cfg_of("unified", ["experiment=student_h1_foot_scan", f"checkpoint.dir={tmp_path}", f"teacher={root / cfg.teacher}",
+    small = cfg_of("unified", [f"experiment={name}", f"checkpoint.dir={tmp_path}", f"teacher={root / cfg.teacher}",
                                "env.num_envs=8", "env.categories=[randommix]", "env.category_weights=null",
                                "env.variants=1", "env.num_threads=1", "logger.backend=csv"])
     p = unified.build(small)
-    assert p.env.cfg.foot_scan and p.env.cfg.gait_feedforward == 0.0
+    assert p.env.cfg.robot == robot and p.env.cfg.foot_scan and p.env.cfg.gait_feedforward == 0.0
     assert p.env.observation_spec["scandots"].shape[-1] == 222
