@@ -478,6 +478,21 @@ def test_feet_in_pit_counts_feet_standing_over_pit_samples():
         make(n=1, scene=NoPits(), reward_overrides={"feet_in_pit": -1.0})
 
 
+def test_base_height_error_cap_reaches_the_base_height_term():
+    """env.base_height_error_cap: the term counts min(h - h_target, cap)^2 of the pelvis height the
+    env reads (cap 0: nothing of a pelvis above its target, all of one below it)."""
+    for cap in (None, 0.0):
+        env = make(n=2, **quiet(base_height_error_cap=cap))
+        env.reset()
+        env.worlds.qpos[0, 2] += 0.3  # world 0 lifted 0.3 m: its pelvis well above its target
+        nxt = act(env)
+        err = env.read_state()["base_height"] - env.robot.base_height_target
+        assert err[0] > 0.1 and err[1] < 0.1
+        counted = err if cap is None else np.minimum(err, cap)
+        np.testing.assert_allclose(nxt["reward_terms", "base_height"].numpy().ravel(),
+                                   -100.0 * env.dt * counted ** 2, rtol=1e-4, atol=1e-7)
+
+
 def test_only_positive_rewards_clips_the_total_not_the_terms():
     for clip in (True, False):
         env = make(n=2, only_positive_rewards=clip)

@@ -134,6 +134,22 @@ def test_base_height_and_point_navigation():
     np.testing.assert_allclose(REWARD_FUNCTIONS["pn_distance"](s), [1.0, -3.0])
 
 
+def test_base_height_cap_counts_only_that_much_of_a_pelvis_above_its_target():
+    """A pelvis 1 m over a pit floor reads a 1 m error; the cap counts 0.1 m of it, a pelvis
+    below its target in full, and no cap the whole error (numpy and torch alike)."""
+    import torch
+
+    heights = np.array([2.05, 0.85, 1.10, 1.05])
+    s = state(base_height=heights, base_height_cap=0.1, goal_dist=np.full(4, 5.0))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["base_height"](s), [0.01, 0.04, 0.0025, 0.0], atol=1e-12)
+    uncapped = state(base_height=heights, goal_dist=np.full(4, 5.0))
+    np.testing.assert_allclose(REWARD_FUNCTIONS["base_height"](uncapped), [1.0, 0.04, 0.0025, 0.0], atol=1e-12)
+    on_torch = state(base_height=torch.tensor(heights), base_height_cap=0.1, goal_dist=torch.full((4,), 5.0),
+                     q=torch.zeros(4, 2))
+    torch.testing.assert_close(REWARD_FUNCTIONS["base_height"](on_torch),
+                               torch.tensor([0.01, 0.04, 0.0025, 0.0], dtype=torch.float64))
+
+
 def test_weights_per_robot_and_dt_scaling():
     h1 = reward_weights("h1")
     g1 = reward_weights("g1", student=True)

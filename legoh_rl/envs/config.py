@@ -117,6 +117,11 @@ class HikingEnvConfig:
         feet_edge_from_level: lowest terrain level on which the ``feet_edge`` term counts (paper:
             4, "terrain_level > 3"). Lower values penalise footholds on edges and in pits already on
             easy trails, where a missed foothold costs a stumble, not a fall.
+        base_height_error_cap: the most of a pelvis above its target height that the
+            ``base_height`` term counts, m (None: all of it, the paper's term). The term measures
+            the pelvis against the terrain right under it, so over a 1 m pit it reads a 1 m error
+            (-2 per step at H1's weight, more than every positive term: with
+            ``only_positive_rewards`` a step over a pit earns nothing). Not in the paper.
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
@@ -172,6 +177,7 @@ class HikingEnvConfig:
     gait_amplitude: float = setting(0.25, Number(0))
     gait_feedforward: float = setting(0.0, Number(0))
     feet_edge_from_level: int = setting(4, Integer(0))
+    base_height_error_cap: float | None = setting(None, Number(0, nullable=True))
     reward_overrides: dict[str, float] = setting(None, MapOf(Choice(_reward_terms, what="reward term"), Number()),
                                                  factory=dict)
     only_positive_rewards: bool = setting(True, Flag())

@@ -29,6 +29,8 @@ Conventions (N worlds, A leg joints):
   (N, 2) bool, feet touching down this step; ``feet_at_edge`` (N, 2) bool, feet in contact on an
   edge cell; ``terrain_level`` (N,) int;
 * ``base_height`` (N,) pelvis height above the terrain under it, ``base_height_target`` float;
+  ``base_height_cap`` float or None: the most of a pelvis *above* its target that ``base_height``
+  counts, m (None: all of it);
 * ``goal_dist`` (N,) distance to the trail end P_B; ``reach_radius`` float;
 * ``fell`` (N,) bool, the episode ends by a fall at this step;
 * gait shaping (optional, read only by ``feet_clearance`` and ``feet_slip``): ``feet_contact``
@@ -138,6 +140,7 @@ class RewardState:
     gait_phase: np.ndarray | None = None
     gait_stance: float = 0.55
     gait_ref_q: np.ndarray | None = None
+    base_height_cap: float | None = None
     feet_edge_from_level: int = 4
     feet_in_pit: np.ndarray | None = None
 
@@ -335,8 +338,14 @@ def reward_feet_air_time(s: RewardState):
 
 @term(weight=-100.0, per_robot={"g1": -35.0})
 def reward_base_height(s: RewardState):
-    """(h_base - h_target)^2, h_base above the terrain under the base."""
-    return (s.base_height - s.base_height_target) ** 2
+    """(h_base - h_target)^2, h_base above the terrain under the base; with ``base_height_cap`` c,
+    (min(h_base - h_target, c))^2: a pelvis over a pit or a gap reads the pit floor under it, so
+    its height error there is the pit's depth, not a posture error (on flat ground a standing
+    pelvis cannot rise c above its target)."""
+    err = s.base_height - s.base_height_target
+    if s.base_height_cap is not None:
+        err = _xp(err).minimum(err, s.base_height_cap)
+    return err ** 2
 
 
 @term(weight=1.0, student_only=True)
