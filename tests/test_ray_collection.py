@@ -86,6 +86,7 @@ def test_without_ray_the_error_names_the_install_before_any_work(tmp_path, monke
     ("collector.backend=rays", r"collector.backend must be one of \['local', 'ray'\], got 'rays'"),
     ("collector.ray.num_cpus_per_worker=0", r"collector.ray.num_cpus_per_worker must be a positive integer, got 0"),
     ("collector.ray.memory_per_worker_gib=-1", r"collector.ray.memory_per_worker_gib must be a positive number"),
+    ("collector.ray.memory_per_worker_gib=inf", r"collector.ray.memory_per_worker_gib must be a positive number.*got inf"),
     ("collector.ray.address=''", r"collector.ray.address must be local, auto, <host>:<port> or null, got ''"),
     ("+collector.ray.num_gpus=1", r"collector.ray has no setting 'num_gpus'"),
 ])

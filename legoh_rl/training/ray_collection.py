@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import math
 import signal
 import threading
 import warnings
@@ -126,7 +127,8 @@ def ray_options(section: Mapping | None) -> RayOptions:
     if not isinstance(cpus, int) or isinstance(cpus, bool) or cpus < 1:
         raise ValueError(f"collector.ray.num_cpus_per_worker must be a positive integer, got {cpus!r}")
     memory = options.memory_per_worker_gib
-    if memory is not None and (isinstance(memory, bool) or not isinstance(memory, int | float) or not memory > 0):
+    if memory is not None and (isinstance(memory, bool) or not isinstance(memory, int | float) or not memory > 0
+                               or not math.isfinite(memory)):
         raise ValueError(f"collector.ray.memory_per_worker_gib must be a positive number of GiB or null, got {memory!r}")
     return options
 
