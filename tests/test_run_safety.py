@@ -246,7 +246,7 @@ def test_student_resume_under_another_teacher_is_refused(tmp_path):
     assert p.frames == 40
 
 
-def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path):
+def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path, monkeypatch):
     """A path a run recorded means the file it held then: with the recorded digest, the file holding
     those bytes (the same path, the RENAMED entry, a sibling); without one, RENAMED's name today."""
     root = Path(__file__).resolve().parents[1]
@@ -264,9 +264,14 @@ def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path)
     assert recorded_checkpoint("ck/a.pt", file_digest(tmp_path / "b.pt"), tmp_path) == "ck/a.pt"  # no such folder
     assert recorded_checkpoint(str(tmp_path / "a.pt"), "0" * 64) == str(tmp_path / "a.pt")  # nowhere: as recorded
     assert recorded_checkpoint("elsewhere/x.pt") == "elsewhere/x.pt"
-    with pytest.raises(FileNotFoundError, match=r"no checkpoint at checkpoints/oracle_h1_foot_scan.pt "
-                                                r"\(renamed: teacher=checkpoints/oracle_h1.pt\)"):
-        unified.validate(cfg_of("unified", ["teacher=checkpoints/oracle_h1_foot_scan.pt"]))
+    # the stage-4 H1 oracle, oracle_h1.pt from 2026-12-04 to 12-05, is found by its digest beside the name
+    stage4 = "42d583151a3c75e7648b0f8e715db6da0eb400d820a6398f69f40c5fe2bfcdce"
+    assert recorded_checkpoint("checkpoints/oracle_h1.pt", stage4, root) == "checkpoints/oracle_h1_foot_scan.pt"
+    # a teacher path that no longer holds a file names where the registry says it went
+    monkeypatch.setitem(RENAMED, "checkpoints/oracle_h1_gone.pt", ("checkpoints/oracle_h1_clocked.pt", "0" * 64))
+    with pytest.raises(FileNotFoundError, match=r"no checkpoint at checkpoints/oracle_h1_gone.pt "
+                                                r"\(renamed: teacher=checkpoints/oracle_h1_clocked.pt\)"):
+        unified.validate(cfg_of("unified", ["teacher=checkpoints/oracle_h1_gone.pt"]))
 
 
 def test_bad_action_total_survives_a_resume(tmp_path):

@@ -149,7 +149,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("student_h1", "checkpoints/student_h1_clocked.pt"),
             ("student_h1_foot_scan", "checkpoints/student_h1.pt"),
             ("oracle_h1_footholds", "checkpoints/oracle_h1_clocked.pt"),
-            ("oracle_h1_foot_scan", "checkpoints/oracle_h1.pt"),
+            ("oracle_h1_foot_scan", "checkpoints/oracle_h1_foot_scan.pt"),
+            ("oracle_h1_real_pits", "checkpoints/oracle_h1.pt"),
             ("oracle_g1_trails", "checkpoints/oracle_g1_trails_clocked.pt"),
             ("oracle_g1_foot_scan", "checkpoints/oracle_g1_trails.pt"),
             ("g1_lego_h", "checkpoints/student_g1_clocked.pt"),
@@ -177,8 +178,12 @@ def test_committed_experiments_expand_to_the_recorded_settings(name, checkpoint)
     if inherits:  # the schedule read from checkpoint.init: the one the run was started with by hand, to its rounding
         init = ROOT / final["checkpoint"]["init"]
         have, want = inherited_schedule(load_checkpoint(init), init), recorded_schedule(state, checkpoint)
-        assert have.gain == pytest.approx(want.gain, rel=1e-3) and have.anneal[0] == want.anneal[0] == 0
-        assert have.anneal[1] == pytest.approx(want.anneal[1], rel=1e-3)
+        assert have.gain == pytest.approx(want.gain, rel=1e-3)
+        if want.anneal is None:  # started at gain 0 (oracle_h1_real_pits): nothing left to anneal
+            assert have.anneal is None and want.gain == 0
+        else:
+            assert have.anneal[0] == want.anneal[0] == 0
+            assert have.anneal[1] == pytest.approx(want.anneal[1], rel=1e-3)
 
 
 def test_every_committed_checkpoint_names_the_experiment_that_made_it():
@@ -261,3 +266,25 @@ def test_the_gpu_student_experiment_is_the_cpu_students_schedule_in_env_steps():
         assert 0.75 < steps(gpu, gpu[key]) / steps(cpu, cpu[key]) < 1.35, key
     assert gpu["hlm"]["warmup_iters"] == gpu["dagger_iters"] and cpu["hlm"]["warmup_iters"] == cpu["dagger_iters"]
     assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"]
+
+
+def test_the_g1_stage5_is_h1s_stage5_on_the_committed_g1_oracle():
+    """oracle_g1_real_pits changes on G1 what oracle_h1_real_pits changed on H1 (the benchmark's pits,
+    the base-height cap, the Gap weight), from a fixed file holding checkpoints/oracle_g1_trails.pt's
+    networks, at the gain 0 that run reached."""
+    def env_of(name):
+        return OmegaConf.to_container(cfg_of("oracle_ppo", [f"experiment={name}"]).env, resolve=True)
+
+    g1, h1 = env_of("oracle_g1_real_pits"), env_of("oracle_h1_real_pits")
+    g1_before, h1_before = env_of("oracle_g1_foot_scan"), env_of("oracle_h1_foot_scan")
+    changed = {k for k in h1 if h1[k] != h1_before.get(k)}
+    assert changed == {"pit_depths", "base_height_error_cap", "category_weights"}
+    assert {k for k in g1 if g1[k] != g1_before.get(k)} == changed and all(g1[k] == h1[k] for k in changed)
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_g1_real_pits"])
+    assert cfg.env.robot == "g1" and cfg.checkpoint.dir == "runs/oracle_g1_real_pits"
+    init = load_checkpoint(ROOT / cfg.checkpoint.init)
+    committed = load_checkpoint(ROOT / "checkpoints" / "oracle_g1_trails.pt")
+    assert init["networks"].keys() == committed["networks"].keys()
+    assert all(torch.equal(init["networks"][k], committed["networks"][k]) for k in init["networks"])
+    schedule = inherited_schedule(init, cfg.checkpoint.init)
+    assert schedule.gain == 0.0 and schedule.anneal is None

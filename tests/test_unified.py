@@ -432,19 +432,29 @@ def test_a_newly_registered_perception_network_is_a_student_perception(teacher, 
     assert load_checkpoint(tmp_path / "ck" / "last.pt")["meta"]["perception"] == "mine"
 
 
-@pytest.mark.parametrize("name,teacher,robot", [("student_h1_foot_scan", "checkpoints/oracle_h1.pt", "h1"),
-                                                ("student_g1_foot_scan", "checkpoints/oracle_g1_trails.pt", "g1")])
-def test_experiment_foot_scan_students_distil_the_oracles_without_feedforward(tmp_path, name, teacher, robot):
-    """student_h1's recipe on the oracles without the gait feedforward (oracle_h1.pt, oracle_g1_trails.pt):
-    the teacher reads its 222 scandots (foot scan), neither acts on a scripted swing, and the G1 student
-    keeps the H1 one's schedule and student with only the robot changed."""
+# the stage-5 oracle's student trains on its teacher's last env: the base-height cap and more Gap worlds
+REAL_PITS_ENV = {"base_height_error_cap": 0.1, "category_weights": [1.0, 1.5, 1.0, 2.5, 0.6]}
+
+
+@pytest.mark.parametrize("name,teacher,robot,env", [
+    ("student_h1_foot_scan", "checkpoints/oracle_h1_foot_scan.pt", "h1", {}),
+    ("student_h1_real_pits", "checkpoints/oracle_h1.pt", "h1", REAL_PITS_ENV),
+    ("student_g1_foot_scan", "checkpoints/oracle_g1_trails.pt", "g1", {})])
+def test_experiment_foot_scan_students_distil_the_oracles_without_feedforward(tmp_path, name, teacher, robot, env):
+    """student_h1's recipe on the oracles without the gait feedforward (oracle_h1_foot_scan.pt,
+    oracle_h1.pt, oracle_g1_trails.pt): the teacher reads its 222 scandots (foot scan), none acts on a
+    scripted swing, and the students keep the H1 one's schedule and student with only the robot,
+    the teacher and (stage 5's) the teacher's env settings changed."""
     root = RECIPES.parent
     cfg = cfg_of("unified", [f"experiment={name}", f"checkpoint.dir={tmp_path}"])
-    base = cfg_of("unified", ["experiment=student_h1", f"checkpoint.dir={tmp_path}", f"env.robot={robot}"])
+    base = cfg_of("unified", ["experiment=student_h1", f"checkpoint.dir={tmp_path}", f"env.robot={robot}"]
+                  + [f"env.{k}={v}" for k, v in env.items()])
     assert cfg.teacher == teacher and (root / cfg.teacher).is_file()
     assert load_checkpoint(root / teacher)["meta"]["robot"] == robot == cfg.env.robot
     assert cfg.dagger_iters == cfg.hlm.warmup_iters == 3500 and cfg.collector.total_frames == 4500 * 64 * 24
     assert cfg.env == base.env and cfg.student == base.student
+    for key, value in env.items():  # the teacher trained with them
+        assert load_checkpoint(root / teacher)["config"]["env"][key] == value
     small = cfg_of("unified", [f"experiment={name}", f"checkpoint.dir={tmp_path}", f"teacher={root / cfg.teacher}",
                                "env.num_envs=8", "env.categories=[randommix]", "env.category_weights=null",
                                "env.variants=1", "env.num_threads=1", "logger.backend=csv"])

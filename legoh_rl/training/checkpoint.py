@@ -69,13 +69,12 @@ def file_digest(path: str | os.PathLike) -> str:
 
 #: Committed checkpoints that took another name after runs had recorded them by path: the path a
 #: record holds -> (the path of that file today, its sha256). ``checkpoints/oracle_h1.pt`` was the
-#: gait-clock oracle until the oracle without the feedforward (``oracle_h1_foot_scan.pt``) took its
-#: name (issue 52); so was ``checkpoints/oracle_g1_trails.pt`` until the G1 oracle without it
-#: (experiment ``oracle_g1_foot_scan``) took that name.
+#: gait-clock oracle until the oracle without the feedforward took its name on 2026-12-04 (issue
+#: 52), and that one (``oracle_h1_foot_scan.pt`` again since 2026-12-05, when the stage-5 oracle
+#: took the name) is found by its digest; so was ``checkpoints/oracle_g1_trails.pt`` until the G1
+#: oracle without it (experiment ``oracle_g1_foot_scan``) took that name.
 RENAMED = {"checkpoints/oracle_h1.pt": ("checkpoints/oracle_h1_clocked.pt",
                                         "6f815f70da0d4dd2b107ca40b6b68046c113b864a0599ac707424458396194ff"),
-           "checkpoints/oracle_h1_foot_scan.pt": ("checkpoints/oracle_h1.pt",
-                                                  "42d583151a3c75e7648b0f8e715db6da0eb400d820a6398f69f40c5fe2bfcdce"),
            "checkpoints/oracle_g1_trails.pt": ("checkpoints/oracle_g1_trails_clocked.pt",
                                                "a8f9139860ce04ee29e68bc8468b3eb982e76eb4009a5cdb97476ac795386049")}
 
