@@ -208,6 +208,28 @@ def test_the_gpu_oracle_experiment_is_the_cpu_stage_on_warp_with_more_worlds():
     assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"]  # never the CPU run's directory
 
 
+def test_the_gpu_g1_stage5_is_the_cpu_stage_with_cuda_networks_and_more_worlds(tmp_path):
+    """oracle_g1_real_pits_gpu (recipes/gpu_kit.py's job) changes where G1's stage 5 runs (CUDA for
+    the networks, C MuJoCo on 16 threads, 1,024 worlds, no collection during the update, csv logs),
+    not what it trains; it builds and trains here with the device and sizes set back to a CPU's."""
+    cpu = OmegaConf.to_container(cfg_of("oracle_ppo", ["experiment=oracle_g1_real_pits"]), resolve=True)
+    gpu = OmegaConf.to_container(cfg_of("oracle_ppo", ["experiment=oracle_g1_real_pits_gpu"]), resolve=True)
+    assert (gpu["device"], gpu["env"]["physics"], gpu["env"]["num_envs"], gpu["env"]["num_threads"]) == (
+        "cuda", "mujoco", 1024, 16)
+    assert {k: v for k, v in gpu["env"].items() if k not in ("num_envs", "num_threads")} == {
+        k: v for k, v in cpu["env"].items() if k not in ("num_envs", "num_threads")}
+    assert gpu["collector"] == {**cpu["collector"], "overlap": False} and cpu["collector"]["overlap"]
+    for key in ("ppo", "model", "feedforward_anneal"):
+        assert gpu[key] == cpu[key], key
+    assert gpu["checkpoint"]["init"] == cpu["checkpoint"]["init"]
+    assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"]  # never the CPU run's directory
+    small = cfg_of("oracle_ppo", ["experiment=oracle_g1_real_pits_gpu", "device=cpu", "env.num_envs=8",
+                                  "env.num_threads=1", "torch_threads=1", "update_threads=1",
+                                  "collector.total_frames=192", f"checkpoint.dir={tmp_path}"])
+    out = run_experiment(small, oracle_ppo.train, "oracle_ppo")
+    state = load_checkpoint(tmp_path / "last.pt")
+    assert state["frames"] == 192 and state["meta"]["robot"] == "g1" and out["frames"] == 192
+
 def test_the_g1_trail_oracle_is_the_h1_oracles_two_runs_as_one_schedule():
     """oracle_g1_trails stages the two H1 runs behind checkpoints/oracle_h1_clocked.pt (oracle_h1_trails,
     then oracle_h1_footholds to that export) for G1: each stage trains with the env, PPO and model
