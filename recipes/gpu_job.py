@@ -28,10 +28,7 @@ import sys
 import time
 from pathlib import Path
 
-from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
-
-from legoh_rl.training.config_store import register_configs
+from legoh_rl.training.gpu_kit import run_dir_of
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the largest file a lent machine hands back is 16 MiB: parts stay under it
@@ -43,25 +40,6 @@ MANIFEST = "manifest.json"
 
 def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def run_dir_of(experiment: str, overrides: list[str]) -> tuple[str, Path]:
-    """``(recipe, checkpoint.dir)`` of an experiment, as its recipe composes it with ``overrides``.
-
-    Raises:
-        FileNotFoundError: no such experiment file. ValueError: it names no known recipe.
-    """
-    register_configs()
-    path = ROOT / "recipes" / "config" / "experiment" / f"{experiment}.yaml"
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no experiment {experiment!r}")
-    recipe = OmegaConf.load(path).get("recipe")
-    if recipe not in ("unified", "oracle_ppo"):
-        raise ValueError(f"{path} names recipe {recipe!r}; expected unified or oracle_ppo")
-    with initialize_config_dir(config_dir=str(ROOT / "recipes" / "config"), version_base=None):
-        cfg = compose(config_name=recipe, overrides=[f"experiment={experiment}", *overrides])
-    run_dir = Path(cfg.checkpoint.dir)
-    return recipe, run_dir if run_dir.is_absolute() else ROOT / run_dir
 
 
 def train(experiment: str, seconds: float, overrides: list[str]) -> tuple[Path, int]:

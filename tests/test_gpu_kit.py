@@ -1,4 +1,5 @@
-"""recipes/gpu_kit.py: the kit a lent GPU machine needs and a working tree small enough to send."""
+"""legoh_rl.training.gpu_kit and recipes/gpu_kit.py: the kit a lent GPU machine needs and a working tree
+small enough to send."""
 
 from __future__ import annotations
 
@@ -9,10 +10,14 @@ from pathlib import Path
 
 import pytest
 
+from legoh_rl.training import gpu_kit
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "recipes"))
 
-import gpu_kit  # noqa: E402
+import gpu_job  # noqa: E402
+
+import gpu_kit as gpu_kit_cli  # noqa: E402  (recipes/gpu_kit.py)
 
 
 def git(root: Path, *args: str) -> str:
@@ -134,3 +139,11 @@ def test_slim_keeps_the_files_each_job_reads():
     assert gpu_kit.needed_paths("oracle_g1_real_pits_gpu") == [
         "runs/oracle_g1_foot_scan/snapshots/frames030001152.pt", "runs/oracle_g1_real_pits_gpu"]
     assert gpu_kit.needed_paths("student_h1_real_pits") == ["checkpoints/oracle_h1.pt", "runs/student_h1_real_pits"]
+
+
+def test_the_command_line_prints_the_device_command_and_gpu_job_finds_the_same_run(capsys):
+    assert gpu_kit_cli.main(["command", "--experiment", "oracle_g1_real_pits_gpu", "--seconds", "300",
+                             "env.num_envs=512"]) == 0
+    assert capsys.readouterr().out.strip() == gpu_kit.device_command("oracle_g1_real_pits_gpu", 300,
+                                                                     ["env.num_envs=512"])
+    assert gpu_job.run_dir_of("oracle_g1_real_pits_gpu", []) == ("oracle_ppo", ROOT / "runs" / "oracle_g1_real_pits_gpu")
