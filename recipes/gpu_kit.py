@@ -31,6 +31,7 @@ a call from a full checkout is refused. This script prepares both, on this machi
 from __future__ import annotations
 
 import argparse
+import shutil
 import sys
 
 from legoh_rl.training.gpu_kit import (
@@ -72,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "build":
         kit = ROOT / KIT
+        shutil.rmtree(kit / "wheels", ignore_errors=True)  # no wheel (or part) of an earlier build stays
         wheels = download_wheels(pinned(KIT_PACKAGES + (WARP_PACKAGES if args.warp else ())), kit / "wheels")
         files = split_large(wheels, args.part_mib * 2**20)
         robots = [copy_robot(r, kit / "robots") for r in args.robot]

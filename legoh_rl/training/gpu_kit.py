@@ -37,7 +37,7 @@ KIT_PACKAGES = ("torchrl", "tensordict", "pyvers", "hoptorch", "orjson", "mujoco
 #: added by ``build --warp`` for ``env.physics=warp`` (warp-lang's wheel is ~149 MB: more than one
 #: call carries, so it is split in parts that the device joins, docs/gpu_physics.md)
 WARP_PACKAGES = ("mujoco-warp", "warp-lang")
-#: tracked folders and file kinds that ``slim`` keeps home unless the experiment reads them
+#: tracked folders that ``slim`` keeps home, but for what the experiment reads
 HEAVY = ("runs", "checkpoints", "docs/videos", "docs/img")
 EXCLUDE_BEGIN = "# >>> gpu_kit slim (recipes/gpu_kit.py restore removes this block)"
 EXCLUDE_END = "# <<< gpu_kit slim"
