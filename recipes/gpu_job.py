@@ -42,6 +42,14 @@ def sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def native_status() -> str:
+    """One line on the native kernels on this machine: loaded from where, or why not."""
+    from legoh_rl.envs.native.build import load_library, unavailable_reason
+
+    lib = load_library()
+    return f"native kernels: {lib._name}" if lib is not None else f"native kernels unavailable: {unavailable_reason()}"
+
+
 def train(experiment: str, seconds: float, overrides: list[str]) -> tuple[Path, int]:
     """Run ``recipes/<recipe>.py experiment=<experiment> checkpoint.resume=auto`` for at most
     ``seconds``; at the deadline send SIGTERM and wait for the run's checkpoint. Returns the run
@@ -159,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.seconds <= 0:
             parser.error(f"--seconds must be positive, got {args.seconds}")
         started = time.monotonic()
+        print(native_status(), flush=True)  # the march falls back to torch (slower) without the kernels
         run_dir, code = train(args.experiment, args.seconds, overrides)
         manifest = pack(run_dir, args.out)
         print(f"trained {time.monotonic() - started:.0f} s (exit {code}); packed {len(manifest['last.pt']['parts'])} "

@@ -15,8 +15,10 @@ a call from a full checkout is refused. This script prepares both, on this machi
 
 * ``build`` downloads, for CPython 3.12 on x86-64 Linux and without dependencies, the wheels of
   :data:`KIT_PACKAGES` at the versions installed here (pure-Python ones with no wheel on the
-  index are built here), and copies the robot's Menagerie folder from ``MENAGERIE_ROOT``, into
-  the ignored folder ``gpu_kit/``.
+  index are built here), copies the robot's Menagerie folder from ``MENAGERIE_ROOT``, and
+  builds the native kernels here (``gpu_kit/native/``, for an image without a C compiler: the
+  device loads them through ``LEGOH_RL_NATIVE_PREBUILT`` when their source matches), into the
+  ignored folder ``gpu_kit/``.
 * ``slim`` takes out of git's index every tracked file under :data:`HEAVY` (run states,
   checkpoints, videos, figures) except those the experiment reads (its run folder, its
   ``checkpoint.init``, its teacher) and lists them in ``.git/info/exclude``, so they stay on disk
@@ -25,7 +27,7 @@ a call from a full checkout is refused. This script prepares both, on this machi
 * ``travel`` adds up what a call would send: tracked files, untracked files not ignored, and the
   carried paths.
 * ``command`` prints the device command: install the kit's wheels, point ``MENAGERIE_ROOT`` at
-  its models, and run ``recipes/gpu_job.py train`` (which packs the run's state into ``$OUT``).
+  its models and ``LEGOH_RL_NATIVE_PREBUILT`` at its kernels, and run ``recipes/gpu_job.py train`` (which packs the run's state into ``$OUT``).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ import argparse
 import shutil
 import sys
 
+from legoh_rl.envs.native.build import export_library
 from legoh_rl.training.gpu_kit import (
     HEAVY,
     KIT,
@@ -73,12 +76,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "build":
         kit = ROOT / KIT
-        shutil.rmtree(kit / "wheels", ignore_errors=True)  # no wheel (or part) of an earlier build stays
+        for old in ("wheels", "robots", "native"):  # nothing of an earlier build stays (a wheel, part, robot)
+            shutil.rmtree(kit / old, ignore_errors=True)
         wheels = download_wheels(pinned(KIT_PACKAGES + (WARP_PACKAGES if args.warp else ())), kit / "wheels")
         files = split_large(wheels, args.part_mib * 2**20)
         robots = [copy_robot(r, kit / "robots") for r in args.robot]
+        native = export_library(kit / "native")
         size = sum(f.stat().st_size for f in kit.rglob("*") if f.is_file())
-        print(f"{kit}: {len(files)} wheel file(s), robots {[r.name for r in robots]}, {size / 2**20:.1f} MiB")
+        print(f"{kit}: {len(files)} wheel file(s), robots {[r.name for r in robots]}, "
+              f"kernels {native.name}, {size / 2**20:.1f} MiB")
     elif args.command == "slim":
         keep = needed_paths(args.experiment) + list(args.keep)
         dropped = slim(keep)

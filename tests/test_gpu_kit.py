@@ -105,6 +105,7 @@ def test_split_parts_are_joined_by_the_device_commands_own_loop(tmp_path):
     assert (wheels / "big-1.0-py3-none-any.whl").read_bytes() == data
     assert "--experiment oracle_g1_real_pits_gpu --seconds 480 --out \"$OUT\"" in command
     assert f"MENAGERIE_ROOT=$PWD/{gpu_kit.KIT}/robots" in command
+    assert f"LEGOH_RL_NATIVE_PREBUILT=$PWD/{gpu_kit.KIT}/native" in command  # the kernels built here
     assert gpu_kit.device_command("x", 5, ["env.num_envs=8"]).endswith("-- env.num_envs=8")
 
 
@@ -139,6 +140,8 @@ def test_slim_keeps_the_files_each_job_reads():
     assert gpu_kit.needed_paths("oracle_g1_real_pits_gpu") == [
         "runs/oracle_g1_foot_scan/snapshots/frames030001152.pt", "runs/oracle_g1_real_pits_gpu"]
     assert gpu_kit.needed_paths("student_h1_real_pits") == ["checkpoints/oracle_h1.pt", "runs/student_h1_real_pits"]
+    assert gpu_kit.needed_paths("student_h1_real_pits_gpu") == ["checkpoints/oracle_h1.pt",
+                                                               "runs/student_h1_real_pits_gpu"]
 
 
 def test_the_command_line_prints_the_device_command_and_gpu_job_finds_the_same_run(capsys):
@@ -147,3 +150,12 @@ def test_the_command_line_prints_the_device_command_and_gpu_job_finds_the_same_r
     assert capsys.readouterr().out.strip() == gpu_kit.device_command("oracle_g1_real_pits_gpu", 300,
                                                                      ["env.num_envs=512"])
     assert gpu_job.run_dir_of("oracle_g1_real_pits_gpu", []) == ("oracle_ppo", ROOT / "runs" / "oracle_g1_real_pits_gpu")
+
+
+def test_the_job_says_whether_the_native_kernels_load(monkeypatch):
+    from legoh_rl.envs.native.build import load_library
+
+    lib = load_library()
+    assert lib is not None and gpu_job.native_status() == f"native kernels: {lib._name}"
+    monkeypatch.setenv("LEGOH_RL_NATIVE", "0")
+    assert gpu_job.native_status() == "native kernels unavailable: disabled by LEGOH_RL_NATIVE=0"

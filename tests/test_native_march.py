@@ -1,5 +1,7 @@
 """The native (C) height-map kernels agree with the torch reference, and fall back cleanly."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -235,3 +237,49 @@ def test_camera_resolves_obstacle_rays_in_the_same_call():
     fin = np.isfinite(fused)
     np.testing.assert_allclose(fused[fin], two_stage[fin], atol=1e-4)
     assert (np.abs(fused - surface)[flagged & fin] > 1e-3).mean() > 0.5  # the exact geoms moved most flagged hits
+
+
+def test_a_prebuilt_library_loads_where_no_compiler_is(tmp_path):
+    """``export_library`` here, then a process whose PATH finds no compiler: with
+    ``$LEGOH_RL_NATIVE_PREBUILT`` at the folder it loads the copy (named by the source digest) and
+    marches as the torch reference does; a folder holding only another source version's library
+    (or none) leaves the kernels unavailable, with the missing compiler as the reason."""
+    import json
+    import subprocess
+    import sys
+
+    folder = tmp_path / "prebuilt"
+    copy = build.export_library(folder)
+    assert copy.name == build.prebuilt_name() and build.source_digest() in copy.name and copy.stat().st_size > 0
+    probe = (
+        "import json, os, numpy as np\n"
+        "from legoh_rl.envs.height_map import HeightMap\n"
+        "from legoh_rl.envs.native.build import load_library, unavailable_reason\n"
+        "lib = load_library()\n"
+        "out = {'loaded': lib is not None, 'reason': unavailable_reason(), 'path': getattr(lib, '_name', None)}\n"
+        "if lib is not None:\n"
+        "    x, y = np.meshgrid(np.arange(40) * 0.1, np.arange(30) * 0.1, indexing='ij')\n"
+        "    hm = HeightMap(0.4 * np.sin(0.9 * x) * np.cos(0.7 * y), origin=(-1.0, -1.0), resolution=0.1)\n"
+        "    xy = np.random.default_rng(0).uniform(-1.5, 3.5, (500, 2))\n"
+        "    native = hm.numpy(xy)\n"
+        "    os.environ['LEGOH_RL_NATIVE'] = '0'\n"
+        "    out['max_diff'] = float(np.abs(native - hm.numpy(xy)).max())\n"
+        "print(json.dumps(out))\n")
+
+    def run(prebuilt):
+        env = {"PATH": str(tmp_path / "empty"), "LEGOH_RL_CACHE": str(tmp_path / "cache"), "HOME": str(tmp_path)}
+        if prebuilt is not None:
+            env["LEGOH_RL_NATIVE_PREBUILT"] = str(prebuilt)
+        done = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                              cwd=str(Path(__file__).resolve().parents[1]), timeout=300)
+        assert done.returncode == 0, done.stderr[-2000:]
+        return json.loads(done.stdout.strip().splitlines()[-1])
+
+    got = run(folder)
+    assert got["loaded"] and got["path"] == str(copy) and got["max_diff"] < 2e-5, got
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "legoh_native-src-0123456789abcdef.so").write_bytes(copy.read_bytes())  # another source's name
+    for prebuilt in (other, None):
+        got = run(prebuilt)
+        assert not got["loaded"] and "no C compiler found" in got["reason"], got

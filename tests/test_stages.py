@@ -26,6 +26,7 @@ RECIPES = ROOT / "recipes"
 sys.path.insert(0, str(RECIPES))
 
 import oracle_ppo  # noqa: E402
+import unified  # noqa: E402
 
 TINY = ["env.num_envs=4", "env.categories=[randommix]", "env.variants=1", "env.num_threads=1",
         "collector.steps_per_env=8", "ppo.num_epochs=1", "ppo.num_minibatches=2", "logger.backend=csv"]
@@ -310,3 +311,42 @@ def test_the_g1_stage5_is_h1s_stage5_on_the_committed_g1_oracle():
     assert all(torch.equal(init["networks"][k], committed["networks"][k]) for k in init["networks"])
     schedule = inherited_schedule(init, cfg.checkpoint.init)
     assert schedule.gain == 0.0 and schedule.anneal is None
+
+
+def test_the_gpu_real_pits_student_is_the_cpu_students_schedule_on_cuda(tmp_path):
+    """student_h1_real_pits_gpu (recipes/gpu_kit.py's student job) changes where student_h1_real_pits
+    runs (CUDA for the networks, C MuJoCo and the march on 16 threads, 1,024 worlds) and keeps what it
+    learns from: the teacher, the env, the networks, the losses, and the schedule in env steps; a PPO
+    minibatch is the CPU run's 32 worlds. It builds and trains here with the device and sizes set back
+    to a CPU's, through the DAgger phase into PPO + L_im + L_hie."""
+    cpu = OmegaConf.to_container(cfg_of("unified", ["experiment=student_h1_real_pits"]), resolve=True)
+    gpu = OmegaConf.to_container(cfg_of("unified", ["experiment=student_h1_real_pits_gpu"]), resolve=True)
+    assert (gpu["device"], gpu["env"]["physics"], gpu["env"]["num_envs"], gpu["env"]["num_threads"]) == (
+        "cuda", "mujoco", 1024, 16)
+    assert {k: v for k, v in gpu["env"].items() if k not in ("num_envs", "num_threads")} == {
+        k: v for k, v in cpu["env"].items() if k not in ("num_envs", "num_threads")}
+    for key in ("teacher", "student", "imitation", "dagger_epochs", "encoder_grad_fraction", "minibatch_split"):
+        assert gpu[key] == cpu[key], key
+    assert {k: v for k, v in gpu["ppo"].items() if k != "num_minibatches"} == {
+        k: v for k, v in cpu["ppo"].items() if k != "num_minibatches"}
+    assert (gpu["env"]["num_envs"] // gpu["ppo"]["num_minibatches"]
+            == cpu["env"]["num_envs"] // cpu["ppo"]["num_minibatches"])
+    assert gpu["dagger_replay"]["capacity"] == cpu["dagger_replay"]["capacity"]  # the same window of env steps
+
+    def steps(cfg, iters):
+        return iters * cfg["env"]["num_envs"] * cfg["collector"]["steps_per_env"]
+
+    for key in ("dagger_iters", "dagger_decay_iters"):
+        assert 0.9 < steps(gpu, gpu[key]) / steps(cpu, cpu[key]) < 1.1, key
+    assert 0.99 < gpu["collector"]["total_frames"] / cpu["collector"]["total_frames"] < 1.01
+    assert gpu["collector"]["total_frames"] % steps(gpu, 1) == 0
+    assert gpu["hlm"]["warmup_iters"] == gpu["dagger_iters"]
+    assert gpu["checkpoint"]["dir"] != cpu["checkpoint"]["dir"] and gpu["logger"]["backend"] == "csv"
+    small = cfg_of("unified", ["experiment=student_h1_real_pits_gpu", "device=cpu", "env.num_envs=4",
+                               "env.num_threads=1", "torch_threads=1", "dagger_minibatches=2", "dagger_iters=1",
+                               "dagger_decay_iters=1", "hlm.warmup_iters=1", "ppo.num_minibatches=2",
+                               "collector.total_frames=192", "dagger_replay.steps=2", f"checkpoint.dir={tmp_path}"])
+    out = run_experiment(small, unified.train, "unified")
+    state = load_checkpoint(tmp_path / "last.pt")
+    assert state["frames"] == 192 and out["frames"] == 192
+    assert state["config"]["experiment_name"] == "student_h1_real_pits_gpu" and state["meta"]["robot"] == "h1"

@@ -241,11 +241,12 @@ def travel_bytes(carry: list[str], root: Path = ROOT) -> dict:
 
 
 def device_command(experiment: str, seconds: int, overrides: list[str] = ()) -> str:
-    """The command a device call runs: install the kit's wheels, point the robot models and the
-    imports at the copy, train ``experiment`` to the deadline and pack its state into ``$OUT``."""
+    """The command a device call runs: install the kit's wheels, point the robot models, the
+    prebuilt native kernels (used where the image has no C compiler) and the imports at the copy, train ``experiment`` to the deadline and pack its state into ``$OUT``."""
     extra = " ".join(overrides)
     return (f"set -e; for p in {KIT}/wheels/*.part00; do if [ -e \"$p\" ]; then cat \"${{p%.part00}}\".part* > "
             f"\"${{p%.part00}}\"; fi; done; python -m pip install -q --no-deps {KIT}/wheels/*.whl; "
-            f"export MENAGERIE_ROOT=$PWD/{KIT}/robots PYTHONPATH=$PWD WANDB_MODE=offline; "
+            f"export MENAGERIE_ROOT=$PWD/{KIT}/robots LEGOH_RL_NATIVE_PREBUILT=$PWD/{KIT}/native PYTHONPATH=$PWD "
+            f"WANDB_MODE=offline; "
             f"python recipes/gpu_job.py train --experiment {experiment} --seconds {seconds} --out \"$OUT\""
             + (f" -- {extra}" if extra else ""))

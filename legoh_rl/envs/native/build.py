@@ -7,6 +7,12 @@ The library is compiled once per source version and machine into a cache folder
 :mod:`ctypes`; no build step at install time and no package beyond the standard library. Where no
 compiler is found or the build fails, or ``LEGOH_RL_NATIVE=0`` is set, :func:`load_library` returns
 ``None`` and :func:`unavailable_reason` says why; callers then use the torch implementation.
+
+A machine without a compiler (a lent GPU machine's image) can load a library built elsewhere:
+:func:`export_library` writes it into a folder under a name that hashes the sources, and
+``$LEGOH_RL_NATIVE_PREBUILT`` pointing at that folder makes :func:`load_library` use it when the
+name matches this source (a library of another source version is never loaded; the build on this
+machine, if any, is the fallback).
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ import tempfile
 from pathlib import Path
 
 __all__ = ["SOURCES", "HEADERS", "cache_dir", "compiler", "library_path", "build_library", "load_library",
-           "unavailable_reason"]
+           "unavailable_reason", "source_digest", "prebuilt_name", "export_library"]
 
 SOURCES = tuple(Path(__file__).with_name(name)
                 for name in ("height_march.c", "obstacle_cast.c", "body_state.c", "parallel.c"))
@@ -61,6 +67,44 @@ def library_path(cc: str) -> Path:
     key.update(" ".join((cc, *FLAGS, platform.machine(), sys.platform)).encode())
     suffix = ".dll" if sys.platform == "win32" else ".so"
     return cache_dir() / f"legoh_native-{key.hexdigest()[:16]}{suffix}"
+
+
+def source_digest() -> str:
+    """16 hex digits hashing the kernels' sources, the flags and the platform (not the compiler):
+    a library built from this source for this platform on any machine carries it in its name."""
+    key = hashlib.sha256()
+    for src in (*SOURCES, *HEADERS):
+        key.update(src.read_bytes())
+    key.update(" ".join((*FLAGS, platform.machine(), sys.platform)).encode())
+    return key.hexdigest()[:16]
+
+
+def prebuilt_name() -> str:
+    """File name of this source's library in a ``$LEGOH_RL_NATIVE_PREBUILT`` folder."""
+    return f"legoh_native-src-{source_digest()}{'.dll' if sys.platform == 'win32' else '.so'}"
+
+
+def export_library(folder: Path, cc: str | None = None) -> Path:
+    """Build the kernels here (or take the cached build) and copy the library into ``folder`` as
+    :func:`prebuilt_name`, for a machine without a compiler. Returns the copy.
+
+    Raises:
+        RuntimeError: no compiler here, or compiling failed.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / prebuilt_name()
+    shutil.copyfile(build_library(cc), out)
+    return out
+
+
+def _prebuilt() -> Path | None:
+    """This source's library in ``$LEGOH_RL_NATIVE_PREBUILT``, if that folder holds it."""
+    folder = os.environ.get("LEGOH_RL_NATIVE_PREBUILT")
+    if not folder:
+        return None
+    path = Path(folder) / prebuilt_name()
+    return path if path.is_file() else None
 
 
 def build_library(cc: str | None = None) -> Path:
@@ -123,15 +167,15 @@ def _disabled() -> str | None:
 
 
 def load_library() -> ctypes.CDLL | None:
-    """The loaded kernel, building it on first use; None (see :func:`unavailable_reason`) when it
-    cannot be built or loaded, or while the environment variable ``LEGOH_RL_NATIVE`` is 0 (read at
+    """The loaded kernel, building it on first use (or loading this source's library from
+    ``$LEGOH_RL_NATIVE_PREBUILT``); None (see :func:`unavailable_reason`) when it cannot be built or loaded, or while the environment variable ``LEGOH_RL_NATIVE`` is 0 (read at
     every call). A build's outcome is remembered for the process."""
     global _lib, _error
     if _disabled():
         return None
     if _lib is None and _error is None:
         try:
-            lib = ctypes.CDLL(str(build_library()))
+            lib = ctypes.CDLL(str(_prebuilt() or build_library()))
             _declare(lib)
             _lib = lib
         except (RuntimeError, OSError, subprocess.SubprocessError) as exc:
