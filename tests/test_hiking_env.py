@@ -629,3 +629,39 @@ def test_pit_depths_reach_the_training_terrain_and_not_the_benchmark():
     env.close()
     with pytest.raises(ValueError, match=r"pit_depths=\[0.1, 0.3, 0.6, 1.0, 1.0\] is a training setting"):
         HikingEnvConfig(mode="eval", pit_depths=depths)
+
+
+def test_category_reward_scales_weight_a_term_by_each_worlds_trail_category():
+    """env.category_reward_scales: the same step of the same worlds, with and without scales; the
+    scaled term is the unscaled one times its world's category's scale (Gap 0, Hurdle 0.5), every
+    other term and the unnamed categories unchanged; a scaled term without a weight is refused."""
+    base = dict(categories=["hurdle", "gap"], levels=[0], variants=1, gait_period=0.8,
+                reward_overrides={"gait_contact": 2.0}, only_positive_rewards=False)
+    out = {}
+    for name, scales in (("plain", {}), ("scaled", {"gap": {"gait_contact": 0.0}, "hurdle": {"gait_contact": 0.5}})):
+        cfg = HikingEnvConfig(num_envs=4, num_threads=1, **quiet(**base, category_reward_scales=scales))
+        env = HikingEnv(cfg)
+        env.set_seed(3)
+        env.reset()
+        for _ in range(3):
+            nxt = act(env)
+        ss = env.step_state
+        category = np.asarray(ss.tile_category[ss.tile])
+        out[name] = (nxt["reward_terms"].to_dict(), nxt["reward"].numpy().ravel(), category, env)
+    plain, scaled = out["plain"], out["scaled"]
+    cats = list(plain[3].trails.categories)
+    np.testing.assert_array_equal(plain[2], scaled[2])
+    assert sorted({cats[c] for c in plain[2]}) == ["gap", "hurdle"]  # both kinds of world are there
+    scale = np.array([{"gap": 0.0, "hurdle": 0.5}[cats[c]] for c in plain[2]])
+    contact = plain[0]["gait_contact"].numpy().ravel()
+    assert (contact > 0).all()  # feet on the ground at the clock's stance: the term pays somewhere
+    np.testing.assert_allclose(scaled[0]["gait_contact"].numpy().ravel(), contact * scale, rtol=1e-6)
+    for term, value in plain[0].items():
+        if term != "gait_contact":
+            np.testing.assert_allclose(scaled[0][term].numpy(), value.numpy(), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(scaled[1], plain[1] - contact * (1 - scale), rtol=1e-5, atol=1e-7)
+    with pytest.raises(ValueError, match=r"category_reward_scales.gap scales \['gait_joint_ref'\], which carry no weight"):
+        HikingEnv(HikingEnvConfig(num_envs=2, num_threads=1, **quiet(
+            **base, category_reward_scales={"gap": {"gait_joint_ref": 0.0}})))
+    with pytest.raises(ValueError, match="category_reward_scales"):
+        HikingEnvConfig(category_reward_scales={"gap": {"gait_contact": -1.0}})

@@ -350,3 +350,35 @@ def test_the_gpu_real_pits_student_is_the_cpu_students_schedule_on_cuda(tmp_path
     state = load_checkpoint(tmp_path / "last.pt")
     assert state["frames"] == 192 and out["frames"] == 192
     assert state["config"]["experiment_name"] == "student_h1_real_pits_gpu" and state["meta"]["robot"] == "h1"
+
+
+def test_the_free_gait_stage_goes_on_from_stage5s_whole_state_with_the_gait_terms_off_on_pits():
+    """oracle_h1_free_gait: stage 1 is done (a copy of oracle_h1_real_pits's last.pt at its end, the
+    networks checkpoints/oracle_h1.pt holds); stage 2 resumes it (optimiser, curriculum, random
+    streams) to 40M frames with the env of stage 5 but for category_reward_scales, which zero the two
+    gait-clock terms on Gap and Ditch; the control, oracle_h1_real_pits_long, ends at the same frames."""
+    from legoh_rl.training.stages import _finished
+
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_free_gait"])
+    stages = parse_stages(cfg.stages)
+    assert [s.name for s in stages] == ["real_pits", "free_gait"]
+    first = stage_config(cfg, stages, 0)
+    copy = load_checkpoint(ROOT / first.checkpoint.dir / "last.pt")
+    exported = load_checkpoint(ROOT / "checkpoints" / "oracle_h1.pt")
+    assert copy["frames"] == stages[0].frames == exported["frames"] and _finished(first)
+    assert all(torch.equal(copy["networks"][k], exported["networks"][k]) for k in exported["networks"])
+    assert {"optim", "env", "rng"} <= set(copy)  # a whole training state, not a policy
+    second = stage_config(cfg, stages, 1)
+    assert second.checkpoint.resume == str(ROOT / first.checkpoint.dir / "last.pt") or \
+        Path(second.checkpoint.resume) == Path(first.checkpoint.dir) / "last.pt"
+    assert second.checkpoint.keep_curriculum and second.checkpoint.init is None
+    free = OmegaConf.to_container(second.env, resolve=True)
+    stage5 = OmegaConf.to_container(cfg_of("oracle_ppo", ["experiment=oracle_h1_real_pits"]).env, resolve=True)
+    off = {"gait_contact": 0.0, "gait_joint_ref": 0.0}
+    assert free.pop("category_reward_scales") == {"gap": off, "ditch": off}
+    assert stage5.pop("category_reward_scales") == {} and free == stage5
+    assert set(off) <= set(stage5["reward_overrides"])  # both terms are weighted in stage 5
+    control = cfg_of("oracle_ppo", ["experiment=oracle_h1_real_pits_long"])
+    assert control.collector.total_frames == second.collector.total_frames == 40_000_000
+    for key in ("ppo", "model"):
+        assert OmegaConf.to_container(second[key]) == OmegaConf.to_container(control[key]), key

@@ -123,6 +123,11 @@ class HikingEnvConfig:
             (-2 per step at H1's weight, more than every positive term: with
             ``only_positive_rewards`` a step over a pit earns nothing). Not in the paper.
         reward_overrides: term -> weight, on top of the paper's table and the robot's rows.
+        category_reward_scales: trail category -> {term: scale}: on worlds whose current trail is
+            of that category, the term's weight is multiplied by the scale (>= 0; categories and
+            terms not named keep 1). E.g. ``{gap: {gait_contact: 0}}`` frees the feet from the
+            gait clock's contact pattern on the Gap trails only. Each term named must be weighted
+            (the env refuses one that is not). Not in the paper.
         only_positive_rewards: clip each step's total reward at 0 (legged_gym and Extreme
             Parkour do; otherwise early, penalty-dominated returns teach the policy to fall fast
             to end its episode). The logged terms are left unclipped; ``termination`` is added
@@ -180,6 +185,9 @@ class HikingEnvConfig:
     base_height_error_cap: float | None = setting(None, Number(0, nullable=True))
     reward_overrides: dict[str, float] = setting(None, MapOf(Choice(_reward_terms, what="reward term"), Number()),
                                                  factory=dict)
+    category_reward_scales: dict[str, dict[str, float]] = setting(
+        None, MapOf(Choice(ALL_CATEGORIES, what="trail category"),
+                    MapOf(Choice(_reward_terms, what="reward term"), Number(0))), factory=dict)
     only_positive_rewards: bool = setting(True, Flag())
     domain_rand: DomainRandConfig = field(default_factory=DomainRandConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)

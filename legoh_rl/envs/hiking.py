@@ -179,6 +179,11 @@ class HikingEnv(EnvBase):
         self.weights = reward_weights(cfg.robot, cfg.reward_overrides, student=cfg.mode != "oracle")
         if "feet_in_pit" in self.weights and getattr(trails, "pit_at", None) is None:
             raise ValueError(f"reward term feet_in_pit needs trails with pit_at(xy); {type(trails).__name__} has none")
+        for category, scales in cfg.category_reward_scales.items():
+            unweighted = sorted(set(scales) - set(self.weights))
+            if unweighted:
+                raise ValueError(f"category_reward_scales.{category} scales {unweighted}, which carry no weight here "
+                                 f"(weighted terms: {sorted(self.weights)})")
         self.camera = None
         if cfg.depth_enabled and self.depth_on_device:  # the simulation's exact rays, on its device
             self.camera = WarpDepthCamera(self.worlds, self.built.camera_id, cfg.depth_camera,

@@ -163,6 +163,16 @@ class StepQuantities:
         return ep
 
     # ------------------------------------------------------------------ the step after the physics
+    def world_weights(self) -> dict:
+        """The reward weights of this step: ``self.weights``, with each term that
+        ``category_reward_scales`` names as an (N,) array, its weight times the scale of every
+        world's current trail category."""
+        if not self.category_scales:
+            return self.weights
+        category = self.tile_category[self.tile]  # (N,)
+        return {name: w * self.category_scales[name][category] if name in self.category_scales else w
+                for name, w in self.weights.items()}
+
     def _score_step(self, diverged):
         """Everything a step derives from the new physical state but the observations: reads the
         state, moves the goals on, computes the reward and its terms, decides and scores the
@@ -182,7 +192,7 @@ class StepQuantities:
         fell, success, terminated, truncated, done = self._episode_ends(state, diverged)
         reward_state = self._reward_state(state)
         reward_state.fell = fell
-        total, terms = compute_rewards(reward_state, self.weights, self.cfg.only_positive_rewards)
+        total, terms = compute_rewards(reward_state, self.world_weights(), self.cfg.only_positive_rewards)
         self.metrics.record_step(state["contact"], state["foot_on_edge"])
         if isinstance(done, np.ndarray) and not done.any():  # (a device's flags are not read back to skip it)
             episode = self._empty_episode()

@@ -114,6 +114,10 @@ class StepState(StepQuantities):
         self.xquat = worlds.xquat if device is None else worlds.views["xquat"]
         self.tile_level = self.from_host(trails.tile_level, np.int64)
         self.tile_category = self.from_host(trails.tile_category, np.int64)
+        # cfg.category_reward_scales as term -> (number of the trails' categories,) scale, 1 where unnamed
+        self.category_scales = {
+            term: self.from_host([cfg.category_reward_scales.get(c, {}).get(term, 1.0) for c in trails.categories])
+            for term in sorted({t for scales in cfg.category_reward_scales.values() for t in scales})}
         self.goal_offsets = self.from_host(np.arange(cfg.num_goals), np.int64)
         self.world_index = self.from_host(np.arange(N), np.int64)
         self.swing_joints = swing_joints(robot.leg_joints) if cfg.gait_period else None
