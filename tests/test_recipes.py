@@ -927,11 +927,16 @@ def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, caps
     assert "resolved config:" in out and "dagger_iters: 5000" in out
     # recorded in the old layout of the env section, printed in today's (upgrade_recorded_config)
     assert "  depth_camera:\n" in out and "  timestep: 0.005" in out and "depth_source" not in out
-    # today's student_h1.pt: the foot-scan oracle's student, its teacher recorded by the name it has again
-    assert provenance.main([str(ROOT / "checkpoints" / "student_h1.pt")]) == 0
+    # the foot-scan oracle's student, its teacher recorded by the name it has again
+    assert provenance.main([str(ROOT / "checkpoints" / "student_h1_foot_scan.pt")]) == 0
     out = capsys.readouterr().out
     assert "experiment student_h1_foot_scan: student_h1_foot_scan.yaml <- student_h1.yaml" in out
     assert "teacher:\n    checkpoints/oracle_h1_foot_scan.pt\n" in out and "experiment oracle_h1_foot_scan:" in out
+    # today's student_h1.pt: the stage-5 oracle's student, its teacher checkpoints/oracle_h1.pt
+    assert provenance.main([str(ROOT / "checkpoints" / "student_h1.pt")]) == 0
+    out = capsys.readouterr().out
+    assert "experiment student_h1_real_pits: student_h1_real_pits.yaml <- student_h1_foot_scan.yaml" in out
+    assert "teacher:\n    checkpoints/oracle_h1.pt\n" in out and "experiment oracle_h1_real_pits:" in out
     assert provenance.experiment_chain("student_g1") == ["student_g1", "student_h1", "student_h1_trails"]
     changed, added = provenance.differences({"a": 1, "b": {"c": 2}, "gone": 0}, {"a": 1, "b": {"c": 3, "d": 4}})
     assert changed == ["b.c: recorded 2, today 3", "gone: recorded 0, today '<no longer a setting>'"]
