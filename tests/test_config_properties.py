@@ -172,6 +172,20 @@ def bad_of(kind) -> st.SearchStrategy:
     raise AssertionError(f"no strategy for {kind}")
 
 
+def map_kinds(prefix: str, kind: MapOf) -> dict:
+    """``{"<prefix>.<name>": bad values}`` for two valid names of a mapping (the recipes' reward
+    terms ``alive`` and ``termination``, the categories ``gap`` and ``ditch``), a nested mapping's
+    entries one level down."""
+    names = [n for n in ("alive", "termination", "gap", "ditch") if n in kind.key.options]
+    out = {}
+    for name in names:
+        if isinstance(kind.value, MapOf):
+            out.update(map_kinds(f"{prefix}.{name}", kind.value))
+        else:
+            out[f"{prefix}.{name}"] = bad_of(kind.value)
+    return out
+
+
 def dataclass_kinds(section: str, cls, skip=()) -> dict:
     """``{"<section>.<field>": bad values}`` for every field of a config dataclass (nested
     sections' fields as ``<section>.<sub>.<field>``), read from the kinds its fields state."""
@@ -182,8 +196,8 @@ def dataclass_kinds(section: str, cls, skip=()) -> dict:
         kind = field_kind(f)
         if kind is None:  # a nested section
             out.update(dataclass_kinds(f"{section}.{f.name}", type(f.default_factory())))
-        elif isinstance(kind, MapOf):  # reward_overrides: the recipes' entries, each a weight
-            out.update({f"{section}.{f.name}.{term}": bad_of(kind.value) for term in ("alive", "termination")})
+        elif isinstance(kind, MapOf):  # reward_overrides, category_reward_scales: entries by the value's kind
+            out.update(map_kinds(f"{section}.{f.name}", kind))
         else:
             out[f"{section}.{f.name}"] = bad_of(kind)
     return out
