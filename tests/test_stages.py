@@ -2,6 +2,7 @@
 in order, each resuming the last, finished ones are skipped, an interrupted one stops the chain;
 every committed experiment expands to the settings its committed checkpoint was trained with."""
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -154,7 +155,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("oracle_h1_foot_scan", "checkpoints/oracle_h1_foot_scan.pt"),
             ("oracle_h1_real_pits", "checkpoints/oracle_h1.pt"),
             ("oracle_g1_trails", "checkpoints/oracle_g1_trails_clocked.pt"),
-            ("oracle_g1_foot_scan", "checkpoints/oracle_g1_trails.pt"),
+            ("oracle_g1_foot_scan", "checkpoints/oracle_g1_foot_scan.pt"),
+            ("oracle_g1_real_pits", "checkpoints/oracle_g1_trails.pt"),
             ("g1_lego_h", "checkpoints/student_g1_clocked.pt"),
             ("student_g1_foot_scan", "checkpoints/student_g1.pt")]
 SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
@@ -294,7 +296,7 @@ def test_the_gpu_student_experiment_is_the_cpu_students_schedule_in_env_steps():
 
 def test_the_g1_stage5_is_h1s_stage5_on_the_committed_g1_oracle():
     """oracle_g1_real_pits changes on G1 what oracle_h1_real_pits changed on H1 (the benchmark's pits,
-    the base-height cap, the Gap weight), from a fixed file holding checkpoints/oracle_g1_trails.pt's
+    the base-height cap, the Gap weight), from a fixed file holding checkpoints/oracle_g1_foot_scan.pt's
     networks, at the gain 0 that run reached."""
     def env_of(name):
         return OmegaConf.to_container(cfg_of("oracle_ppo", [f"experiment={name}"]).env, resolve=True)
@@ -307,7 +309,7 @@ def test_the_g1_stage5_is_h1s_stage5_on_the_committed_g1_oracle():
     cfg = cfg_of("oracle_ppo", ["experiment=oracle_g1_real_pits"])
     assert cfg.env.robot == "g1" and cfg.checkpoint.dir == "runs/oracle_g1_real_pits"
     init = load_checkpoint(ROOT / cfg.checkpoint.init)
-    committed = load_checkpoint(ROOT / "checkpoints" / "oracle_g1_trails.pt")
+    committed = load_checkpoint(ROOT / "checkpoints" / "oracle_g1_foot_scan.pt")
     assert init["networks"].keys() == committed["networks"].keys()
     assert all(torch.equal(init["networks"][k], committed["networks"][k]) for k in init["networks"])
     schedule = inherited_schedule(init, cfg.checkpoint.init)
@@ -383,3 +385,46 @@ def test_the_free_gait_stage_goes_on_from_stage5s_whole_state_with_the_gait_term
     assert control.collector.total_frames == second.collector.total_frames == 40_000_000
     for key in ("ppo", "model"):
         assert OmegaConf.to_container(second[key]) == OmegaConf.to_container(control[key]), key
+
+
+# Table 1 at convergence: the branch point is student_h1_real_pits' last.pt as committed in 41862d3
+CONVERGED_BRANCH = ("41862d3", "runs/student_h1_real_pits/last.pt")
+
+
+def test_table1_at_convergence_rows_differ_from_the_committed_student_only_in_what_they_ablate():
+    """h1_lego_h_converged / h1_no_hlm_converged branch student_h1_real_pits after its DAgger phase and
+    differ from it in the random streams and from each other in L_hie alone; h1_vanilla_converged is
+    its whole schedule with the ConvGRU perception and no HLM (the paper's Vanilla row)."""
+    base = OmegaConf.to_container(cfg_of("unified", ["experiment=student_h1_real_pits"]), resolve=True)
+    rows = {name: OmegaConf.to_container(cfg_of("unified", [f"experiment={name}"]), resolve=True)
+            for name in ("h1_lego_h_converged", "h1_no_hlm_converged", "h1_vanilla_converged")}
+    lego, no_hlm, vanilla = rows.values()
+    same = lambda a, b, skip: {k: v for k, v in a.items() if k not in skip} == {  # noqa: E731
+        k: v for k, v in b.items() if k not in skip}
+    run_keys = {"experiment_name", "logger", "checkpoint", "env"}
+    assert same(lego, base, run_keys) and same(lego["env"], base["env"], {"seed"})
+    assert lego["env"]["seed"] == 1 != base["env"]["seed"]
+    assert same(no_hlm, lego, run_keys | {"hlm"}) and same(no_hlm["hlm"], lego["hlm"], {"enabled"})
+    assert lego["hlm"]["enabled"] and not no_hlm["hlm"]["enabled"]
+    assert lego["checkpoint"]["branch"] == no_hlm["checkpoint"]["branch"] == "runs/student_h1_real_pits/dagger_end.pt"
+    assert lego["checkpoint"]["dir"] != no_hlm["checkpoint"]["dir"]
+    assert same(vanilla, base, run_keys | {"student", "hlm"}) and vanilla["env"] == base["env"]
+    assert vanilla["student"]["perception"] == "vanilla" and not vanilla["hlm"]["enabled"]
+    assert vanilla["checkpoint"].get("branch") is None
+    assert base["hlm"]["warmup_iters"] == base["dagger_iters"]  # L_hie waits for PPO: the DAgger phase is shared
+
+
+def test_the_converged_rows_branch_point_is_in_gits_history(tmp_path):
+    """The command in h1_lego_h_converged.yaml takes the branch point out of the history: the end of
+    student_h1_real_pits' DAgger phase (iteration 3,513, 13 iterations into PPO + L_im + L_hie)."""
+    commit, path = CONVERGED_BRANCH
+    for row in ("h1_lego_h_converged", "h1_no_hlm_converged"):
+        assert f"git show {commit}:{path} > runs/student_h1_real_pits/dagger_end.pt" in (
+            RECIPES / "config" / "experiment" / f"{row}.yaml").read_text()
+    blob = subprocess.run(["git", "show", f"{commit}:{path}"], cwd=ROOT, capture_output=True, check=True).stdout
+    (tmp_path / "dagger_end.pt").write_bytes(blob)
+    state = load_checkpoint(tmp_path / "dagger_end.pt")
+    assert (state["iteration"], state["frames"]) == (3513, 3513 * 64 * 24)
+    assert state["meta"]["experiment"] == "student_h1_real_pits"
+    cfg = cfg_of("unified", ["experiment=student_h1_real_pits"])
+    assert cfg.dagger_iters <= state["iteration"] < cfg.dagger_iters + 20

@@ -439,7 +439,8 @@ REAL_PITS_ENV = {"base_height_error_cap": 0.1, "category_weights": [1.0, 1.5, 1.
 @pytest.mark.parametrize("name,teacher,robot,env", [
     ("student_h1_foot_scan", "checkpoints/oracle_h1_foot_scan.pt", "h1", {}),
     ("student_h1_real_pits", "checkpoints/oracle_h1.pt", "h1", REAL_PITS_ENV),
-    ("student_g1_foot_scan", "checkpoints/oracle_g1_trails.pt", "g1", {})])
+    ("student_g1_foot_scan", "checkpoints/oracle_g1_foot_scan.pt", "g1", {}),
+    ("student_g1_real_pits", "checkpoints/oracle_g1_trails.pt", "g1", REAL_PITS_ENV)])
 def test_experiment_foot_scan_students_distil_the_oracles_without_feedforward(tmp_path, name, teacher, robot, env):
     """student_h1's recipe on the oracles without the gait feedforward (oracle_h1_foot_scan.pt,
     oracle_h1.pt, oracle_g1_trails.pt): the teacher reads its 222 scandots (foot scan), none acts on a
