@@ -244,3 +244,26 @@ def test_a_thread_count_set_in_one_thread_stays_there():
     thread.join()
     assert seen["other"] == 2 and torch.get_num_threads() == 1
     assert "mkl_get_max_threads() : 1" in torch.__config__.parallel_info() or not torch.backends.mkl.is_available()
+
+
+def test_a_one_process_collector_on_the_trainers_own_weights_needs_no_push():
+    """The in-turn loop pushes the trained weights to the collector only when it runs a copy: a
+    one-process Collector on the behaviour itself sees every update in place (the in-turn schedule
+    above: batch k by version k), a copy of it does not."""
+    from torchrl.collectors import Collector
+
+    env = HikingEnv(HikingEnvConfig(num_envs=2, categories=("randommix",), variants=1, num_threads=1, seed=3))
+    t = _VersionTrainer(env)
+    kwargs = dict(frames_per_batch=4, total_frames=8, **t.collector_kwargs)
+    own = Collector(env, t.behaviour, **kwargs)
+    copy = Collector(env, __import__("copy").deepcopy(t.behaviour), **kwargs)
+    try:
+        assert runner.weights_shared(own, t.behaviour)
+        assert not runner.weights_shared(copy, t.behaviour)
+        assert not runner.weights_shared(object(), t.behaviour)
+        t.behaviour.module.version += 5  # an update in place reaches the shared collector's next batch
+        assert next(iter(own))["version"].unique().tolist() == [5.0]
+        assert next(iter(copy))["version"].unique().tolist() == [0.0]
+    finally:
+        own.shutdown()
+        copy.shutdown()

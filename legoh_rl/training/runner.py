@@ -67,7 +67,8 @@ from legoh_rl.training.videos import policy_video
 from legoh_rl.training.weight_average import PolicyAverage
 from legoh_rl.training.workers import WorkerEnvs, check_workers, make_worker_collector
 
-__all__ = ["Trainer", "train", "provenance", "finish", "collector_workers", "collector_backend", "collector_overlap"]
+__all__ = ["Trainer", "train", "provenance", "finish", "collector_workers", "collector_backend", "collector_overlap",
+           "weights_shared"]
 
 
 class Trainer(ABC):
@@ -291,6 +292,7 @@ def _sequential_loop(t: Trainer, settings: _BatchSettings, collector, pool: Work
                      bar, stop) -> dict:
     """Collect a batch, update on it, in turn."""
     summary: dict = {}
+    push = not weights_shared(collector, t.behaviour)
     collected = batch_at = time.perf_counter()
     for data in collector:
         now = time.perf_counter()
@@ -303,7 +305,8 @@ def _sequential_loop(t: Trainer, settings: _BatchSettings, collector, pool: Work
         stats = {**t.update(data), **settings.of_batch()}
         if t.average is not None:  # reads the trained weights only: training is unchanged
             t.average.update()
-        collector.update_policy_weights_()  # Ray: the trained policy's weights, sent to every worker
+        if push:  # workers or Ray: the trained policy's weights, sent to every worker
+            collector.update_policy_weights_()
         t.iteration += 1
         t.frames += data.numel()
         bar.update(data.numel())
@@ -423,6 +426,19 @@ def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames:
         collector.shutdown()
         raise
     return collector, pool
+
+
+def weights_shared(collector, policy: torch.nn.Module) -> bool:
+    """Whether ``collector`` is a one-process torchrl ``Collector`` that runs ``policy``'s own
+    parameters and buffers (the trainer's behaviour on the CPU): pushing the trained weights to it
+    would copy every tensor onto itself, ~0.05 s of a student's 2 s iteration (BENCHMARKS.md).
+    Worker processes, Ray actors and a collector holding a copy (another device) return False."""
+    inner = getattr(collector, "_policy_w_state_dict", None)
+    if not isinstance(collector, Collector) or not isinstance(inner, torch.nn.Module):
+        return False
+    mine = {x.data_ptr() for x in (*policy.parameters(), *policy.buffers())}
+    theirs = [*inner.parameters(), *inner.buffers()]
+    return bool(theirs) and all(x.data_ptr() in mine for x in theirs)
 
 
 def collector_workers(cfg: DictConfig) -> int:
