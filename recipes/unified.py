@@ -18,6 +18,9 @@ on the tick steps of each collected sequence so gradients reach TC-ViT exactly a
     python recipes/unified.py experiment=... checkpoint.branch=runs/x/last.pt env.seed=1 hlm.enabled=false
         # a new run from another's state (weights, optimisers, curriculum, replay window, counters)
         # with its own random streams: ablations and seeds that share a first stage
+    python recipes/unified.py experiment=... checkpoint.init=checkpoints/student_g1.pt
+        # a fresh run from a student policy's perception and locomotion weights (a student
+        # distilled again from a new teacher); everything else starts fresh
     python recipes/unified.py teacher=... device=cuda collector.workers=2   # GPU networks, 2 collecting processes
 """
 
@@ -111,6 +114,7 @@ SETTINGS = {
     "hlm.vae_steps": Integer(1),
     "hlm.warmup_iters": Integer(0),
     "checkpoint.branch": Name(nullable=True),
+    "checkpoint.init": Name(nullable=True),
     "checkpoint.ema_decay": Number(0, 1, low_open=True, high_open=True, nullable=True),
     "allow_new_teacher": Flag(),
 }
@@ -148,6 +152,12 @@ def validate(cfg: DictConfig) -> None:
     branch = cfg.checkpoint.get("branch")
     if branch is not None and not Path(branch).is_file():
         raise FileNotFoundError(f"checkpoint.branch: no checkpoint at {branch}")
+    init = cfg.checkpoint.get("init")
+    if init is not None and not Path(init).is_file():
+        raise FileNotFoundError(f"checkpoint.init: no student policy at {init}")
+    if init is not None and branch is not None:
+        raise ValueError(f"checkpoint.init ({init}) and checkpoint.branch ({branch}) both start a run from another "
+                         "one: a branch carries a run's whole state, init a policy's weights only; set one")
     check_run_dir(cfg.checkpoint.dir, cfg.checkpoint.resume, bool(cfg.checkpoint.get("overwrite", False)))
     if cfg.get("minibatch_split", "permute") not in ("permute", "strided"):
         raise ValueError(f"minibatch_split must be permute or strided, got {cfg.get('minibatch_split')!r}")
@@ -375,7 +385,48 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
                                    "experiment": state["meta"].get("experiment")}
         print(f"branched from {branch}: iteration {state['iteration']}, {state['frames']} frames; "
               f"random streams from env.seed={cfg.env.seed}")
+    elif cfg.checkpoint.get("init") is not None:
+        p.meta[INIT_KEY] = init_student(p, cfg.checkpoint.init)
+        print(f"perception and locomotion weights from {cfg.checkpoint.init}; the rest starts fresh")
+    if path is not None and INIT_KEY in state["meta"]:  # kept by every checkpoint and export of the run
+        p.meta[INIT_KEY] = state["meta"][INIT_KEY]
     return p
+
+
+#: the meta block's record of a run started from a student policy's weights (``checkpoint.init``)
+INIT_KEY = "initialised_from"
+#: what a student policy must share with this run to start it: the robot, what it observes and acts
+#: on, the gait clock its proprioception carries, and its perception (the teacher may differ)
+INIT_META = ("robot", "num_actions", "obs_layout", "gait_period", "gait_stance", "foot_scan", "perception", "preset")
+
+
+def init_student(p: UnifiedTrainer, path: str) -> dict:
+    """``checkpoint.init``: a fresh run's perception and locomotion module start from a student
+    policy's weights (a slim export of ``recipes/export_policy.py`` or a run's ``last.pt``), as when
+    a student is distilled again from a new teacher; the critic, the masked VAE, the optimisers, the
+    curriculum, the DAgger replay window, the counters and the weight average start fresh.
+
+    Returns:
+        the run's meta record: ``{"checkpoint": path, "sha256", "experiment", "frames",
+        "teacher_sha256"}`` (the policy's own teacher, which may differ from this run's).
+
+    Raises:
+        ValueError: not a student policy; another robot, observation layout, gait clock,
+            perception or preset (names each field with both values); another locomotion network.
+        CheckpointError: weights of other shapes (names the setting to fix).
+    """
+    state = load_checkpoint(path)
+    meta = state.get("meta", {})
+    if meta.get("kind") != "student" or "perception" not in state or "actor" not in state:
+        raise ValueError(f"checkpoint.init: {path} holds no student policy (kind {meta.get('kind')!r}); "
+                         "an oracle starts a student only as its teacher")
+    check_meta(meta, {k: p.meta[k] for k in INIT_META if k in p.meta}, path)
+    check_network(meta, p.meta, path)
+    hint = "student.perception and student.preset must be the policy's"
+    load_weights(p.student.perception, state["perception"], path, "perception weights", hint)
+    load_weights(p.student.actor, state["actor"], path, "locomotion weights", hint)
+    return {"checkpoint": str(path), "sha256": file_digest(path), "experiment": meta.get("experiment"),
+            "frames": int(state.get("frames", 0)), "teacher_sha256": meta.get("teacher_sha256")}
 
 
 def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
@@ -397,7 +448,7 @@ def restore(p: UnifiedTrainer, state: dict, path, exact: bool) -> None:
     require_training_state(state, path, ("optim", "sched", "vae_optim", "critic", "vae", "env", "rng", "frames"))
     # the oracle's config is that of the teacher, which check_teacher compares by its digest
     check_meta(state["meta"], {k: v for k, v in p.meta.items()
-                               if k not in ("branched_from", "oracle_config", "locomotion_network")}, path)
+                               if k not in ("branched_from", INIT_KEY, "oracle_config", "locomotion_network")}, path)
     check_network(state["meta"], p.meta, path)
     check_teacher(state, p.cfg, p.teacher_sha256, path)
     hint = "student.perception, student.preset and the teacher must be the ones it was trained with"

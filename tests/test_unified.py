@@ -7,7 +7,7 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-from legoh_rl.training.checkpoint import file_digest, load_checkpoint
+from legoh_rl.training.checkpoint import export_policy, file_digest, load_checkpoint
 
 RECIPES = Path(__file__).resolve().parents[1] / "recipes"
 sys.path.insert(0, str(RECIPES))
@@ -462,3 +462,44 @@ def test_experiment_foot_scan_students_distil_the_oracles_without_feedforward(tm
     p = unified.build(small)
     assert p.env.cfg.robot == robot and p.env.cfg.foot_scan and p.env.cfg.gait_feedforward == 0.0
     assert p.env.observation_spec["scandots"].shape[-1] == 222
+
+
+def test_init_starts_a_fresh_student_from_a_student_policys_weights(teacher, tmp_path):
+    """checkpoint.init: perception and locomotion weights from a student policy (a slim export here),
+    everything else fresh (critic, VAE, optimiser, curriculum, counters); the run records where it
+    started and keeps that record through its checkpoints and a resume."""
+    src = tmp_path / "src"
+    unified.train(tiny(teacher, src, "collector.total_frames=80"))
+    export = tmp_path / "student.pt"
+    export_policy(src / "last.pt", export)
+    saved = load_checkpoint(export)
+    init = [f"checkpoint.init={export}", "env.seed=5"]
+    p = unified.build(tiny(teacher, tmp_path / "i", "collector.total_frames=120", *init))
+    fresh = unified.build(tiny(teacher, tmp_path / "fresh", "env.seed=5"))
+    assert (p.iteration, p.frames) == (0, 0) and p.optim.state_dict()["state"] == {}
+    for mine, weights in ((p.student.perception, saved["perception"]), (p.student.actor, saved["actor"])):
+        assert all(torch.equal(mine.state_dict()[k], v) for k, v in weights.items())
+    trained = load_checkpoint(src / "last.pt")
+    for mine, other, theirs in ((p.critic_nets, fresh.critic_nets, trained["critic"]), (p.vae, fresh.vae, trained["vae"])):
+        assert all(torch.equal(mine.state_dict()[k], v) for k, v in other.state_dict().items())  # this seed's init
+        assert not all(torch.equal(mine.state_dict()[k], v) for k, v in theirs.items())
+    info = p.meta[unified.INIT_KEY]
+    assert info == {"checkpoint": str(export), "sha256": file_digest(export), "experiment": None, "frames": 80,
+                    "teacher_sha256": saved["meta"]["teacher_sha256"]}
+    unified.train(tiny(teacher, tmp_path / "i", "collector.total_frames=120", *init))
+    assert load_checkpoint(tmp_path / "i" / "last.pt")["meta"][unified.INIT_KEY] == info
+    resumed = unified.build(tiny(teacher, tmp_path / "i", "collector.total_frames=160", "checkpoint.resume=auto", *init))
+    assert resumed.frames == 120 and resumed.meta[unified.INIT_KEY] == info  # resumed, not initialised again
+
+
+def test_init_refuses_what_cannot_start_a_student(teacher, tmp_path):
+    with pytest.raises(FileNotFoundError, match="checkpoint.init: no student policy at .*nowhere.pt"):
+        unified.validate(tiny(teacher, tmp_path / "a", f"checkpoint.init={tmp_path / 'nowhere.pt'}"))
+    with pytest.raises(ValueError, match="checkpoint.init .* and checkpoint.branch .* set one"):
+        unified.validate(tiny(teacher, tmp_path / "b", f"checkpoint.init={teacher}", f"checkpoint.branch={teacher}"))
+    with pytest.raises(ValueError, match=r"holds no student policy \(kind 'oracle'\)"):
+        unified.build(tiny(teacher, tmp_path / "c", f"checkpoint.init={teacher}"))
+    src = tmp_path / "src"
+    unified.train(tiny(teacher, src, "collector.total_frames=40", "student.perception=vanilla"))
+    with pytest.raises(ValueError, match="perception: checkpoint has 'vanilla', this run needs 'tcvit'"):
+        unified.build(tiny(teacher, tmp_path / "d", f"checkpoint.init={src / 'last.pt'}"))
