@@ -431,7 +431,8 @@ def _collector(cfg: DictConfig, t: Trainer, frames_per_batch: int, total_frames:
 def weights_shared(collector, policy: torch.nn.Module) -> bool:
     """Whether ``collector`` is a one-process torchrl ``Collector`` that runs ``policy``'s own
     parameters and buffers (the trainer's behaviour on the CPU): pushing the trained weights to it
-    would copy every tensor onto itself, ~0.05 s of a student's 2 s iteration (BENCHMARKS.md).
+    would copy every tensor onto itself, ~1% of a student's iteration (BENCHMARKS.md, "Where the DAgger
+    iteration goes now").
     Worker processes, Ray actors and a collector holding a copy (another device) return False."""
     inner = getattr(collector, "_policy_w_state_dict", None)
     if not isinstance(collector, Collector) or not isinstance(inner, torch.nn.Module):
