@@ -282,6 +282,7 @@ KINDS = {
         "hlm.vae_steps": bad_int(1),
         "hlm.warmup_iters": bad_int(0),
         "checkpoint.branch": bad_name(null=True),
+        "checkpoint.init": bad_name(null=True),
         "checkpoint.ema_decay": bad_num(0, 1, low_open=True, high_open=True, null=True),
         "allow_new_teacher": bad_flag(),
     },
