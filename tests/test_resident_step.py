@@ -93,6 +93,27 @@ def test_student_resident_step_with_depth_gait_clock_and_pits_equals_the_host_st
         assert_same_outputs(nh, nr)
 
 
+def test_a_held_world_on_the_resident_step_as_on_the_host_step():
+    """``HikingEnv.hold`` on the device-resident step: the held world ends no episode and never
+    ticks (Warp still advances its simulation), and both paths' outputs stay the same."""
+    host, res = pair(mode="student")
+    th, tr = host.reset(), res.reset()
+    host.hold([1]), res.hold([1])
+    assert res.held.tolist() == host.held.tolist() == [False, True, False, False]
+    assert res.step_state.held.device == res.step_state.tick.device and bool(res.step_state.held[1])
+    g = torch.Generator().manual_seed(0)
+    for _ in range(12):
+        a = 2.0 * torch.randn(N, host.A, generator=g)
+        out_h, th = host.step_and_maybe_reset(th.set("action", a))
+        out_r, tr = res.step_and_maybe_reset(tr.set("action", a))
+        nh, nr = out_h["next"], out_r["next"]
+        assert_same_outputs(nh, nr)
+        for out in (nh, nr):
+            assert not out["done"][1].item() and not out["perception_tick"][1].item()
+    res.reset()
+    assert not res.held.any() and not bool(res.step_state.held.any())
+
+
 def test_feed_forward_targets_of_the_resident_step_are_the_host_steps():
     """The gait clock's feed-forward PD targets, computed in float64 on both paths, reach the
     simulation as the same float32 values, bit for bit."""

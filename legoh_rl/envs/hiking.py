@@ -339,12 +339,14 @@ class HikingEnv(EnvBase):
         self.randomizer.push(st.host_episode_step % self.push_every == 0, self.rng)
         physics = time.perf_counter()
         diverged_before = self.worlds.diverged_total
-        diverged = self.worlds.step()  # (a resident simulation's one wait for the device: its divergence count)
+        held = st.held_mask()
+        # (a resident simulation's one wait for the device: its divergence count)
+        diverged = self.worlds.step(None if held is None else ~st.host_held)
         self.time_spent["physics"] += time.perf_counter() - physics
         self.diverged_total += self.worlds.diverged_total - diverged_before
         self.bad_action_total += int(num_bad)
 
-        state, total, terms, episode, flags = st._score_step(diverged)
+        state, total, terms, episode, flags = st._score_step(diverged, held)
         self._settle(st.ended_episodes())
         st.update_tick(self.cfg.perception_every, self.global_steps if self.cfg.perception_clock == "global" else None)
         self._render_depth(st.host_tick)
@@ -357,6 +359,36 @@ class HikingEnv(EnvBase):
         return out
 
     # ------------------------------------------------------------------ episodes
+    def hold(self, worlds) -> None:
+        """Hold ``worlds`` still until their next reset: an evaluation's finished worlds, whose
+        steps nobody reads, stop costing what a step costs.
+
+        A held world ends no episode (its ``done``, ``terminated`` and ``truncated`` stay False,
+        so it is never auto-reset), takes no depth frame and never ticks (``perception_tick``
+        False: a :class:`~legoh_rl.transforms.PerceptionHold` policy leaves its perception
+        out), and on the C MuJoCo physics its simulation is not advanced (Warp's one launch
+        steps every world). Its other outputs (observations, reward) are computed as usual and
+        meaningless. The other worlds' steps are exactly what they would be without the hold.
+        A reset of the world (``env.reset()``, or its row of ``_reset``) releases it; the hold
+        is not part of :meth:`state_dict`.
+
+        Args:
+            worlds: a world index, a sequence of them or an (N,) bool mask (as :meth:`render`).
+
+        Raises:
+            ValueError: an index outside ``[0, N)``, or a mask of the wrong shape.
+        """
+        if worlds is None:
+            raise ValueError("hold needs the worlds to hold (an index, indices or an (N,) bool mask), got None")
+        ids, _ = self._world_ids(worlds)
+        if ids.size:
+            self.step_state.hold(ids)
+
+    @property
+    def held(self) -> np.ndarray:
+        """(N,) bool, the worlds :meth:`hold` holds now (a copy)."""
+        return self.step_state.host_held.copy()
+
     def _reset_worlds(self, ids: np.ndarray) -> None:
         """Start new episodes in worlds ``ids`` (n,): draw their trail tiles, spawn poses and
         randomised dynamics from the env's stream (on the host, in this order), reset their

@@ -117,9 +117,12 @@ class Worlds(ABC):
         their outputs computed."""
 
     @abstractmethod
-    def step(self) -> np.ndarray:
-        """Advance every world ``decimation`` substeps; returns (N,) bool, the worlds that
-        diverged and were reset to their home states (counted in ``diverged_total``)."""
+    def step(self, active: np.ndarray | None = None) -> np.ndarray:
+        """Advance the worlds ``decimation`` substeps; returns (N,) bool, the worlds that
+        diverged and were reset to their home states (counted in ``diverged_total``).
+
+        ``active`` (N,) bool names the worlds that need advancing (None: all); a backend may
+        leave the others where they are (the C MuJoCo batch does) or step them too."""
 
     @abstractmethod
     def per_world(self, field: str) -> np.ndarray:
@@ -244,16 +247,30 @@ class BatchedWorlds(Worlds):
         b.forward(idx, stage=mujoco.mjtStage.mjSTAGE_ACC)
         self._warn_seen[idx] = self._instability_count()[idx]
 
-    def step(self) -> np.ndarray:
-        """Advance every world ``decimation`` substeps; reset and count the ones that diverged.
+    def step(self, active: np.ndarray | None = None) -> np.ndarray:
+        """Advance the worlds ``decimation`` substeps; reset and count the ones that diverged.
+
+        Args:
+            active: (N,) bool, the worlds to advance; the others keep their state exactly (an
+                evaluation's finished worlds, :meth:`~legoh_rl.envs.hiking.HikingEnv.hold`).
+                None: every world.
 
         Returns:
             diverged: (N,) bool, worlds that diverged during this step and were reset to their
             home state.
         """
         failed = np.zeros(self.num_worlds, dtype=bool)
+        ids = None
+        if active is not None:
+            active = np.asarray(active, dtype=bool)
+            if active.shape != (self.num_worlds,):
+                raise ValueError(f"active must be a ({self.num_worlds},) bool mask, got shape {active.shape}")
+            if not active.all():
+                ids = np.flatnonzero(active)
+                if ids.size == 0:
+                    return failed
         try:
-            self.batch.step(nstep=self.decimation, stage=mujoco.mjtStage.mjSTAGE_VEL)
+            self.batch.step(ids, nstep=self.decimation, stage=mujoco.mjtStage.mjSTAGE_VEL)
         except mjb.SimulationError as err:  # those worlds kept their pre-step state
             failed[np.asarray(err.ids, dtype=np.int64)] = True
         warn = self._instability_count()

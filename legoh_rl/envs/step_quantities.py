@@ -124,16 +124,20 @@ class StepQuantities:
             feet_in_pit=self._pit_under(s["feet_xy"]) & s["contact"] if "feet_in_pit" in self.weights else None,
         )
 
-    def _episode_ends(self, s: dict, diverged):
+    def _episode_ends(self, s: dict, diverged, held=None):
         """``(fell, success, terminated, truncated, done)``, each (N,) bool, from the state ``s``
-        and the worlds whose physics ``diverged`` (N,) bool (truncated, neither fell nor succeeded)."""
+        and the worlds whose physics ``diverged`` (N,) bool (truncated, neither fell nor succeeded);
+        all False on the ``held`` (N,) bool worlds (None: none held)."""
         xp = namespace_of(s["roll"])
         cfg = self.cfg
         fell = ((xp.abs(s["roll"]) > cfg.fall_roll_pitch) | (xp.abs(s["pitch"]) > cfg.fall_roll_pitch)
                 | (s["base_height"] < cfg.fall_height_ratio * self.robot.base_height_target)) & ~diverged
         success = (s["goal_dist"] < cfg.reach_radius) & ~diverged & ~fell
+        truncated = (self.episode_step >= self.max_steps) | diverged
+        if held is not None:
+            fell, success, truncated = fell & ~held, success & ~held, truncated & ~held
         terminated = fell | success
-        truncated = ((self.episode_step >= self.max_steps) | diverged) & ~terminated
+        truncated = truncated & ~terminated
         return fell, success, terminated, truncated, terminated | truncated
 
     def _finish_episodes(self, done, success, s: dict) -> dict:
@@ -173,13 +177,15 @@ class StepQuantities:
         return {name: w * self.category_scales[name][category] if name in self.category_scales else w
                 for name, w in self.weights.items()}
 
-    def _score_step(self, diverged):
+    def _score_step(self, diverged, held=None):
         """Everything a step derives from the new physical state but the observations: reads the
         state, moves the goals on, computes the reward and its terms, decides and scores the
         episode ends and keeps this step's joint velocities and torques for the next one.
 
         Args:
             diverged: (N,) bool, the worlds whose physics diverged (and were reset) this step.
+            held: (N,) bool, worlds held still (:meth:`~legoh_rl.envs.hiking.HikingEnv.hold`):
+                none of their episodes ends; None: no world is held.
 
         Returns:
             ``(state, reward, terms, episode, flags)``: the state (``read_state`` with
@@ -189,7 +195,7 @@ class StepQuantities:
         state = self.read_state()
         self._advance_goals(state["pos"])
         state["goal_dirs_w"] = self._goal_dirs(state["pos"])
-        fell, success, terminated, truncated, done = self._episode_ends(state, diverged)
+        fell, success, terminated, truncated, done = self._episode_ends(state, diverged, held)
         reward_state = self._reward_state(state)
         reward_state.fell = fell
         total, terms = compute_rewards(reward_state, self.world_weights(), self.cfg.only_positive_rewards)

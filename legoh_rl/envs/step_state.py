@@ -145,6 +145,9 @@ class StepState(StepQuantities):
         #: on the host): pushes and camera frames are scheduled from them without reading the device
         self.host_episode_step = self.episode_step if device is None else np.zeros(N, dtype=np.int64)
         self.host_tick = self.tick if device is None else np.ones(N, dtype=bool)
+        #: worlds held still until their next reset (:meth:`hold`): the state's and the host's copy
+        self.held = self.zeros(N, dtype=bool)
+        self.host_held = self.held if device is None else np.zeros(N, dtype=bool)
         # the depth images the observations read: the camera's own buffer where it lives in this
         # namespace (or on the host step), else a copy on the device refreshed on rendered rows
         self.depth = camera_depth
@@ -251,8 +254,21 @@ class StepState(StepQuantities):
         self.feet_xy_prev[rows] = self.body.arrays["xpos"][rows][:, self.body.index["foot_bodies"], :2]
         self.metrics.reset(rows)
         self.tick[rows] = True
+        self.held[rows] = False
         self.host_episode_step[ids] = 0
         self.host_tick[ids] = True
+        self.host_held[ids] = False
+
+    def hold(self, ids: np.ndarray) -> None:
+        """Hold worlds ``ids`` (n,) until their next reset (the state's and the host's copy): they
+        tick no more (:meth:`update_tick`) and end no episode (:meth:`_score_step`)."""
+        self.host_held[ids] = True
+        if self.host_held is not self.held:
+            self.held[self.rows(ids)] = True
+
+    def held_mask(self):
+        """The state's (N,) held mask when some world is held, else None (the usual step, unmasked)."""
+        return self.held if self.host_held.any() else None
 
     def ended_episodes(self, ids: np.ndarray | None = None):
         """The ended episodes to hand to the curriculum now, as host arrays ``(ids, progress,
@@ -323,16 +339,20 @@ class StepState(StepQuantities):
         """The perception tick of the step just taken (the state's and the host's copy): a depth
         frame every ``perception_every`` control steps of each world's episode, or, given the
         env's ``global_step`` count (``perception_clock="global"``), of that count, on every world
-        at once (a world's reset renders its first frame besides)."""
+        at once (a world's reset renders its first frame besides). A held world never ticks."""
         if global_step is not None:
             on = global_step % perception_every == 0
             self.tick[...] = on
             if self.host_tick is not self.tick:
                 self.host_tick[...] = on
-            return
-        self.tick[...] = self.episode_step % perception_every == 0
-        if self.host_tick is not self.tick:
-            np.equal(self.host_episode_step % perception_every, 0, out=self.host_tick)
+        else:
+            self.tick[...] = self.episode_step % perception_every == 0
+            if self.host_tick is not self.tick:
+                np.equal(self.host_episode_step % perception_every, 0, out=self.host_tick)
+        if self.host_held.any():  # a held world takes no frame and its perception does not run
+            self.tick &= ~self.held
+            if self.host_tick is not self.tick:
+                self.host_tick &= ~self.host_held
 
     def take_depth(self, camera_depth, which: np.ndarray) -> None:
         """Copy the rows of worlds ``which`` (N,) bool the camera just rendered into

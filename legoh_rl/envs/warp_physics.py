@@ -485,8 +485,10 @@ class WarpWorlds(Worlds):
         if not self.resident:
             self._download(idx)
 
-    def step(self) -> np.ndarray:
+    def step(self, active: np.ndarray | None = None) -> np.ndarray:
         """Advance every world ``decimation`` substeps; reset and count the ones that diverged.
+        ``active`` is accepted for the :class:`~legoh_rl.envs.physics.Worlds` interface: one
+        kernel launch steps every world, so inactive worlds advance too.
 
         Returns:
             diverged: (N,) bool, worlds whose state went non-finite or too fast, or which

@@ -146,8 +146,14 @@ def release_memory() -> None:
         pass
 
 
-def run_protocol(env, policy, protocol: EvalProtocol, progress: bool = False) -> EvalResult:
+def run_protocol(env, policy, protocol: EvalProtocol, progress: bool = False,
+                 hold_finished: bool = True) -> EvalResult:
     """Run ``policy`` (deterministic) on every cell of ``protocol``.
+
+    A world whose counted episode has ended is held (:meth:`~legoh_rl.envs.HikingEnv.hold`)
+    until the run's end: its physics, camera and perception stop, which cuts an evaluation's
+    time by the share of the 30 s the finished worlds would have spent walking a second episode
+    nobody counts. The counted episodes are the same either way.
 
     Args:
         env: a :class:`~legoh_rl.envs.HikingEnv` in eval mode with ``protocol.num_worlds``
@@ -155,6 +161,7 @@ def run_protocol(env, policy, protocol: EvalProtocol, progress: bool = False) ->
         policy: a TensorDictModule writing ``action`` (run under deterministic exploration).
         protocol: the cells, robots and runs.
         progress: show a progress bar of the worlds whose episode has ended (tqdm, on stderr).
+        hold_finished: hold the finished worlds (False: step them on, as before the hold existed).
 
     Returns:
         the :class:`EvalResult`; each world contributes the first episode of each run.
@@ -192,6 +199,8 @@ def run_protocol(env, policy, protocol: EvalProtocol, progress: bool = False) ->
                 if new.any():
                     _record(result, out["next"], new, run, cells, cell_of)
                     bar.update(int(new.sum()))
+                    if hold_finished:
+                        base.hold(new)
                 if track.size:  # a world that just ended was auto-reset: its path stops here
                     ended = (finished | done)[track, None]
                     paths.append(np.where(ended, np.nan, base.worlds.qpos[track, :2]))
