@@ -4,7 +4,7 @@ stepping them on to the run's end, alternated in one process.
     python benchmarks/eval_hold.py                                          # student_h1 and oracle_h1
     python benchmarks/eval_hold.py --checkpoints checkpoints/student_g1.pt --robots-per-cell 8 --repeats 3
 
-For each checkpoint the whole benchmark's cells (five categories x five levels) are evaluated on
+For each checkpoint the whole benchmark's cells (the five categories x five levels) are evaluated on
 one trail grid, ``--repeats`` times each way in the order A B A B ... (A: held, B: stepped on),
 timing only :func:`~legoh_rl.training.evaluation.run_protocol` (the env and the policy are built
 before the clock starts). Prints a markdown row per checkpoint: the median seconds each way, the
@@ -58,11 +58,11 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("MUJOCO_GL", "egl")
     import torch
 
-    from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
+    from legoh_rl.envs.trails import CATEGORIES, NUM_LEVELS
     from legoh_rl.training.evaluation import EvalProtocol
 
     torch.set_num_threads(1)  # as recipes/evaluate.py
-    protocol = EvalProtocol(categories=tuple(ALL_CATEGORIES), levels=tuple(range(NUM_LEVELS)),
+    protocol = EvalProtocol(categories=tuple(CATEGORIES), levels=tuple(range(NUM_LEVELS)),
                             robots_per_cell=args.robots_per_cell, seed=args.seed)
     print(f"{protocol.num_worlds} worlds, grid {args.seed}, {args.variants} variants, {args.repeats} pair(s) "
           "(held, stepped on) per checkpoint\n")

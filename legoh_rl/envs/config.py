@@ -15,7 +15,7 @@ from legoh_rl.envs.curriculum import CurriculumConfig
 from legoh_rl.envs.randomization import DOMAIN_RAND_TERMS, DomainRandConfig
 from legoh_rl.envs.robots import ROBOTS
 from legoh_rl.envs.sensors import DepthCameraConfig
-from legoh_rl.envs.trails import ALL_CATEGORIES, NUM_LEVELS
+from legoh_rl.envs.trails import ALL_CATEGORIES, CATEGORIES, NUM_LEVELS
 from legoh_rl.kinds import (
     Choice,
     Flag,
@@ -148,7 +148,7 @@ class HikingEnvConfig:
     freeze_ankle_roll: bool = setting(False, Flag())
     num_envs: int = setting(64, Integer(1))
     mode: str = setting("oracle", Choice(MODES, what="mode"))
-    categories: tuple[str, ...] = setting(("randommix", "ditch", "hurdle", "gap", "forest"),
+    categories: tuple[str, ...] = setting(CATEGORIES,
                                           ListOf(Choice(ALL_CATEGORIES, what="trail category"), single=True))
     category_weights: tuple[float, ...] | None = setting(None, ListOf(Number(0, low_open=True), nullable=True))
     levels: tuple[int, ...] = setting((0,), ListOf(Integer(0, NUM_LEVELS - 1)))
