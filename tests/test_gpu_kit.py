@@ -16,7 +16,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "recipes"))
 
 import gpu_job  # noqa: E402
-
 import gpu_kit as gpu_kit_cli  # noqa: E402  (recipes/gpu_kit.py)
 
 
