@@ -376,7 +376,8 @@ class HikingEnv(EnvBase):
             worlds: a world index, a sequence of them or an (N,) bool mask (as :meth:`render`).
 
         Raises:
-            ValueError: an index outside ``[0, N)``, or a mask of the wrong shape.
+            ValueError: ``worlds`` is None, an index lies outside ``[0, N)``, or a mask has the
+                wrong shape.
         """
         if worlds is None:
             raise ValueError("hold needs the worlds to hold (an index, indices or an (N,) bool mask), got None")
