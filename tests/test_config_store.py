@@ -267,3 +267,22 @@ def test_domain_rand_off_and_only_turn_single_terms_on():
     assert not any(getattr(master_off, t) for t in DOMAIN_RAND_TERMS)
     only = master_off.only(["push", "action_delay"])
     assert only.enabled and [t for t in DOMAIN_RAND_TERMS if getattr(only, t)] == ["push", "action_delay"]
+
+
+def test_recipe_keys_are_a_fresh_copy_and_follow_an_edited_yaml(tmp_path):
+    """recipe_keys keeps the parsed files per process: each call still gets its own dict, and an
+    edited yaml (the recipe's or a group option's) is read again."""
+    from legoh_rl.training.config_checks import recipe_keys
+
+    (tmp_path / "group").mkdir()
+    (tmp_path / "group" / "a.yaml").write_text("width: 8\n")
+    recipe = tmp_path / "recipe.yaml"
+    recipe.write_text("defaults:\n  - group: a\n  - _self_\nseed: 1\n")
+    first = recipe_keys(recipe)
+    assert first == {"group": {"width": 8}, "seed": 1}
+    first["group"]["width"] = 99
+    assert recipe_keys(recipe)["group"]["width"] == 8
+    (tmp_path / "group" / "a.yaml").write_text("width: 8\ndepth: 2\n")
+    assert recipe_keys(recipe) == {"group": {"width": 8, "depth": 2}, "seed": 1}
+    recipe.write_text("defaults:\n  - group: a\n  - _self_\nseed: 1\nlr: 0.5\n")
+    assert recipe_keys(recipe)["lr"] == 0.5

@@ -52,6 +52,14 @@ def steps(path):
     return [json.loads(line)["step"] for line in Path(path).read_text().splitlines()]
 
 
+def _holds_lock(ck, pid):
+    """Whether process ``pid`` has taken run folder ``ck`` (its pid in ``run.lock``)."""
+    try:
+        return (ck / "run.lock").read_text().strip() == str(pid)
+    except FileNotFoundError:
+        return False
+
+
 def csv_steps(ck, name="reward/total"):
     (path,) = Path(ck, "logs").rglob(f"scalars/{name}.csv")
     return [int(float(line.split(",")[0])) for line in path.read_text().splitlines()]
@@ -138,9 +146,15 @@ def test_killed_at_random_moments_resume_logs_each_step_once(tmp_path):
     cmd = [sys.executable, str(RECIPES / "oracle_ppo.py"), *TINY, f"collector.total_frames={total}",
            f"checkpoint.dir={ck}", "checkpoint.every=2", "checkpoint.resume=auto"]
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    for _ in range(4):
+    for _ in range(3):
         proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        time.sleep(rng.uniform(6.0, 12.0))  # imports and build take ~5 s: some kills land before a checkpoint
+        # Each kill lands in the run, not in its imports (~5 s, waited out: the process writes its
+        # pid into run.lock once it has taken the folder), at a random moment: some before a
+        # checkpoint, some while one is written, some after.
+        deadline = time.time() + 120
+        while proc.poll() is None and time.time() < deadline and not _holds_lock(ck, proc.pid):
+            time.sleep(0.1)
+        time.sleep(rng.uniform(0.3, 2.5))  # the 30 iterations take ~4 s after the lock
         proc.kill()
         proc.wait()
         if (ck / "last.pt").is_file():

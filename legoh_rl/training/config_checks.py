@@ -14,7 +14,9 @@ nothing about how settings combine, which the recipes check themselves.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping
+from functools import lru_cache
 from pathlib import Path
 
 from omegaconf import DictConfig, ListConfig, OmegaConf
@@ -92,8 +94,17 @@ def recipe_keys(config_file: str | Path) -> dict:
     its ``defaults`` list brings in (a group's option from hydra's ConfigStore, e.g. ``env/hiking``,
     or a yaml file beside the recipe's, e.g. ``shared/training.yaml``; ``# @package _global_`` at
     the top level, else under the group's name; ``experiment`` and null options left out) with
-    the recipe's own settings merged over it."""
-    config_file = Path(config_file)
+    the recipe's own settings merged over it. A fresh copy each call; the parsed files are kept
+    per process, keyed by the yaml files' modification times and sizes (a recipe validates once per run,
+    a test or a stage schedule many times)."""
+    config_file = Path(config_file).resolve()
+    stamps = tuple((str(f), f.stat().st_mtime_ns, f.stat().st_size) for f in sorted(config_file.parent.rglob("*.yaml")))
+    return copy.deepcopy(_recipe_keys(config_file, stamps))
+
+
+@lru_cache(maxsize=16)
+def _recipe_keys(config_file: Path, stamps: tuple) -> dict:
+    """:func:`recipe_keys`' work, cached per ``(config_file, stamps)``."""
     raw = OmegaConf.to_container(OmegaConf.load(config_file), resolve=False)
     out: dict = {}
     for entry in raw.pop("defaults", None) or []:
