@@ -26,6 +26,7 @@ sys.path.insert(0, str(ROOT / "recipes"))
 import paper_tables as recipe  # noqa: E402
 
 import legoh_rl.paper_tables as pt  # noqa: E402
+from legoh_rl.paper_tables import render  # noqa: E402
 from legoh_rl.training import eval_run  # noqa: E402
 
 TEX = ROOT.parent / "shared" / "reference" / "lego-h-paper.tex"
@@ -63,7 +64,7 @@ def test_hand_picked_paper_numbers():
 
 def test_every_paper_row_has_the_six_metrics_and_a_checkpoint_row():
     labels = {t.name: t.label for t in pt.TABLES.values()}
-    assert labels == {"ablation": "tab:ablation_h1", "benchmark": "tab:hiking_benchmark", "gru_ct": "tab:ablation_gru",
+    assert labels == {"ablation": "tab:ablation_h1", "ablation_converged": "tab:ablation_h1", "benchmark": "tab:hiking_benchmark", "gru_ct": "tab:ablation_gru",
                       "hlm_vae": "tab:vae", "hlm_plugin": "plug", "g1": "tab:g1",
                       "terrains": "tab:hiking_benchmark_terrains"}
     lego_h = paper_row("ablation", "LEGO-H").paper
@@ -80,7 +81,7 @@ def test_every_paper_row_has_the_six_metrics_and_a_checkpoint_row():
             for m in given:
                 mean, std = row.paper[m]
                 assert mean >= 0 and 0 <= std < 5, (table.name, row.method, m)
-            if row.key in ("h1_lego_h", "h1_lego_h_long"):  # LEGO-H on H1 is one set of figures in every table
+            if row.key in ("h1_lego_h", "h1_lego_h_long", "h1_lego_h_converged"):  # LEGO-H on H1 is one set of figures in every table
                 assert all(row.paper[m] == lego_h[m] for m in given), table.name
     assert {r.group for r in pt.TABLES["terrains"].rows} == {"randommix", "ditch", "hurdle", "gap", "forest"}
 
@@ -219,6 +220,36 @@ def test_student_h1_is_the_longer_lego_h_row_and_no_ablation_seed(tmp_path):
     assert lego.paths == (tmp_path / "ablations" / "h1_lego_h_seed0.pt",) and lego.frames == (None,)
     missing = pt.resolve_row(pt.ROWS["h1_rmab"], tmp_path)
     assert (missing.found, missing.path, missing.note) == (False, tmp_path / "ablations" / "h1_rmab.pt", "")
+
+
+def test_the_converged_rows_take_student_h1_and_their_own_seeds_only(tmp_path):
+    """Table 1 at convergence: LEGO-H is ``student_h1.pt`` (seed 0) and the
+    ``h1_lego_h_converged`` seeds; w TC-ViT and Vanilla their own seeds; the 1.70M-step rows take
+    none of these files and the converged rows none of theirs."""
+    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(True), frames=6_912_000)
+    fake_checkpoint(tmp_path / "ablations" / "h1_lego_h_converged_seed1.pt", student_meta(), hlm_config(True),
+                    frames=6_912_000)
+    fake_checkpoint(tmp_path / "ablations" / "h1_no_hlm_converged_seed0.pt", student_meta(), hlm_config(False),
+                    frames=6_912_000)
+    fake_checkpoint(tmp_path / "ablations" / "h1_no_hlm_seed1.pt", student_meta(), hlm_config(False),
+                    frames=1_699_584)
+    fake_checkpoint(tmp_path / "ablations" / "h1_vanilla_converged_seed0.pt", student_meta(perception="vanilla"),
+                    hlm_config(False), frames=6_912_000)
+    lego = pt.resolve_row(pt.ROWS["h1_lego_h_converged"], tmp_path)
+    assert lego.paths == (tmp_path / "student_h1.pt", tmp_path / "ablations" / "h1_lego_h_converged_seed1.pt")
+    assert lego.frames == (6_912_000, 6_912_000)
+    no_hlm = pt.resolve_row(pt.ROWS["h1_no_hlm_converged"], tmp_path)
+    assert no_hlm.paths == (tmp_path / "ablations" / "h1_no_hlm_converged_seed0.pt",)
+    assert pt.resolve_row(pt.ROWS["h1_no_hlm"], tmp_path).paths == (tmp_path / "ablations" / "h1_no_hlm_seed1.pt",)
+    assert not pt.resolve_row(pt.ROWS["h1_lego_h"], tmp_path).found
+    vanilla = pt.resolve_row(pt.ROWS["h1_vanilla_converged"], tmp_path)
+    assert vanilla.paths == (tmp_path / "ablations" / "h1_vanilla_converged_seed0.pt",)
+    assert not pt.resolve_row(pt.ROWS["h1_vanilla"], tmp_path).found
+    # a w TC-ViT file trained with HLM is not the row
+    fake_checkpoint(tmp_path / "ablations" / "h1_no_hlm_converged_seed1.pt", student_meta(), hlm_config(True))
+    res = pt.resolve_row(pt.ROWS["h1_no_hlm_converged"], tmp_path)
+    assert res.paths == (tmp_path / "ablations" / "h1_no_hlm_converged_seed0.pt",)
+    assert "h1_no_hlm_converged_seed1.pt holds the H1 student (tcvit, HLM on)" in res.note
 
 
 # ---------------------------------------------------------------------------------------------
@@ -573,3 +604,28 @@ def test_into_writes_the_tables_into_a_results_file_and_checks_it_first(tmp_path
     with pytest.raises(SystemExit):
         recipe.main(["--trail-seeds", "1", "--out", str(tmp_path / "t"), "--into", str(results)])
     assert f"{results}: marker <!-- paper_tables:hlm_vae --> has no closing" in capsys.readouterr().err
+
+
+def test_contrasts_report_the_difference_welch_t_and_cohen_d_by_hand():
+    """A table's contrast: row a - row b in SR over the training seeds, Welch's t and Cohen's d
+    (sample variances) by hand; one seed on a side gives no t; a row not evaluated, no figure."""
+    def seeds(*sr):
+        return [aggregate_of(s) for s in sr]
+
+    a = pt.RowResult("h1_lego_h", "evaluated", Path("a.pt"), per_seed=seeds(50.0, 54.0, 58.0))
+    b = pt.RowResult("h1_no_hlm", "evaluated", Path("b.pt"), per_seed=seeds(50.0, 50.0, 53.0))
+    c = render.contrast(a, b)  # means 54 and 51; variances 16 and 3
+    assert c["diff"] == pytest.approx(3.0) and (c["n_a"], c["n_b"]) == (3, 3)
+    assert c["t"] == pytest.approx(3.0 / math.sqrt(16 / 3 + 3 / 3))
+    assert c["d"] == pytest.approx(3.0 / math.sqrt((16 + 3) / 2))
+    one = pt.RowResult("h1_vanilla", "evaluated", Path("v.pt"), per_seed=seeds(40.0))
+    assert render.contrast(b, one) == {"diff": pytest.approx(11.0), "t": None, "d": None, "n_a": 3, "n_b": 1}
+    assert render.contrast(a, pt.RowResult("h1_no_hlm", "not trained", Path("b.pt"))) is None
+    results = {"h1_oracle": pt.RowResult("h1_oracle", "evaluated", Path("o.pt"), rows=aggregate_of(80.0)),
+               "h1_lego_h": a, "h1_no_hlm": b}
+    text = pt.markdown(pt.TABLES["ablation"], results)
+    assert ("- HLM (LEGO-H - w TC-ViT (no HLM)), SR points: ours +3.00 (3 vs 3 training seeds, "
+            f"Welch's t = {3.0 / math.sqrt(16 / 3 + 1):.2f}, Cohen's d = {3.0 / math.sqrt(9.5):.2f}); "
+            "paper +3.67") in text
+    assert ("- TC-ViT over a ConvGRU (w TC-ViT (no HLM) - Vanilla (ConvGRU)), SR points: ours — "
+            "(a row not evaluated); paper +21.76") in text

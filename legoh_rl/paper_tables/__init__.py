@@ -1,7 +1,7 @@
 """The paper's comparison tables, ours beside the paper's numbers (``recipes/paper_tables.py`` is
 the command line).
 
-Every table of ``lego-h-paper.tex`` that compares methods (:data:`TABLES`: the ablation on H1, the
+Every table of ``lego-h-paper.tex`` that compares methods (:data:`TABLES`: the ablation on H1 (and again with the students trained to convergence), the
 H1 benchmark, GRU vs causal transformers, HLM vs a vanilla VAE, HLM as a plug-in for EP-H, G1 vs
 H1, and EP-H vs RMA-B per trail category) lists per method a row of ours (``mean ± std`` of the
 six metrics) with the paper's row under it. The modules, in the order the command uses them:

@@ -10,10 +10,12 @@ import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import numpy as np
+
 from legoh_rl.paper_tables.evaluations import RowResult
 from legoh_rl.paper_tables.paper import METRICS, TABLES, PaperRow, PaperTable, Value, check_unique
 
-__all__ = ["fmt", "env_steps", "markdown", "csv_rows", "CSV_FIELDS", "write_tables", "fill_markers", "into_files"]
+__all__ = ["fmt", "env_steps", "contrast", "markdown", "csv_rows", "CSV_FIELDS", "write_tables", "fill_markers", "into_files"]
 
 
 def fmt(value: Value | None) -> str:
@@ -55,6 +57,47 @@ def _ours(row: PaperRow, result: RowResult | None) -> tuple[str, dict[str, Value
     return "evaluated", {m: group[m] for m in METRICS}, where
 
 
+def contrast(a: RowResult | None, b: RowResult | None, metric: str = "success") -> dict | None:
+    """Row a minus row b in ``metric`` over their training seeds (each seed's mean over the trail
+    grids), with Welch's t and Cohen's d (pooled sample std) when each row has two seeds or more.
+
+    Returns:
+        ``{"diff", "t", "d", "n_a", "n_b"}`` (``t``, ``d``: None with fewer than two seeds on
+        either side, or no spread at all), or None when either row was not evaluated.
+    """
+    if a is None or b is None or a.status != "evaluated" or b.status != "evaluated":
+        return None
+    xa = np.array([seed["overall"][metric][0] for seed in a.per_seed], float)
+    xb = np.array([seed["overall"][metric][0] for seed in b.per_seed], float)
+    out = {"diff": float(xa.mean() - xb.mean()), "t": None, "d": None, "n_a": len(xa), "n_b": len(xb)}
+    if len(xa) >= 2 and len(xb) >= 2:
+        va, vb = xa.var(ddof=1), xb.var(ddof=1)
+        if va + vb > 0:
+            out["t"] = out["diff"] / math.sqrt(va / len(xa) + vb / len(xb))
+            out["d"] = out["diff"] / math.sqrt((va + vb) / 2)
+    return out
+
+
+def _contrast_lines(table: PaperTable, results: Mapping[str, RowResult]) -> list[str]:
+    """The table's contrasts as markdown bullets (ours beside the paper's difference)."""
+    paper = {r.key: r.paper for r in table.rows if r.paper is not None}
+    lines = []
+    for what, ka, kb in table.contrasts:
+        names = {r.key: r.method for r in table.rows}
+        head = f"- {what} ({names[ka]} - {names[kb]}), SR points: "
+        theirs = (f"paper {paper[ka]['success'][0] - paper[kb]['success'][0]:+.2f}"
+                  if ka in paper and kb in paper else "paper —")
+        c = contrast(results.get(ka), results.get(kb))
+        if c is None:
+            lines.append(head + f"ours — (a row not evaluated); {theirs}")
+            continue
+        seeds = f"{c['n_a']} vs {c['n_b']} training seeds"
+        stats = (f", Welch's t = {c['t']:.2f}, Cohen's d = {c['d']:.2f}" if c["t"] is not None
+                 else ": too few seeds for a t")
+        lines.append(head + f"ours {c['diff']:+.2f} ({seeds}{stats}); {theirs}")
+    return lines
+
+
 def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
     """One table as markdown: per method a row of ours and the paper's under it.
 
@@ -87,6 +130,8 @@ def markdown(table: PaperTable, results: Mapping[str, RowResult] | None) -> str:
             lines.append("| " + " | ".join([name, *trails, "paper", *([""] if results is not None else []),
                                             *(fmt(row.paper[m]) for m in METRICS)]
                                            + ([""] if results is not None else [])) + " |")
+    if results is not None and table.contrasts:
+        lines += ["", "Effects:", "", *_contrast_lines(table, results)]
     return "\n".join(lines)
 
 
