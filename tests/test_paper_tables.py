@@ -142,7 +142,9 @@ def test_checkpoint_info_reads_hlm_from_the_meta_or_else_the_training_config():
     warm = hlm_config(True)
     warm["hlm"]["warmup_iters"] = 100
     assert pt.checkpoint_info(student_meta(), warm, iteration=99).hlm is False  # L_hie not joined yet
-    assert pt.checkpoint_info(student_meta(), warm, iteration=100).hlm is True
+    # iteration 100: updates 0-99 done, none with L_hie (it joins at update 100)
+    assert pt.checkpoint_info(student_meta(), warm, iteration=100).hlm is False
+    assert pt.checkpoint_info(student_meta(), warm, iteration=101).hlm is True
     unknown = pt.checkpoint_info(student_meta(), None)
     assert unknown.hlm is None and unknown.vanilla_vae is None
     oracle = pt.checkpoint_info({"robot": "h1", "kind": "oracle"}, hlm_config(True))

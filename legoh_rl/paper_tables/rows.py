@@ -113,8 +113,8 @@ def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int
     ``hlm.enabled``, ``hlm.warmup_iters`` and ``hlm.vanilla_vae`` say it. Rule: ``meta["hlm"]``
     (bool) and ``meta["vanilla_vae"]`` when present, else ``config["hlm"]["enabled"]`` and
     ``config["hlm"]["vanilla_vae"]`` (False when absent), where an enabled HLM whose
-    ``warmup_iters`` the checkpoint's ``iteration`` has not reached counts as off (its L_hie never
-    trained the student: only the masked VAE did); with neither, HLM is unknown (None) and no row
+    ``warmup_iters`` the checkpoint's ``iteration`` (updates done) has not passed counts as off (its
+    L_hie never trained the student: only the masked VAE did); with neither, HLM is unknown (None) and no row
     that needs HLM on or off takes the checkpoint.
 
     Args:
@@ -131,7 +131,9 @@ def checkpoint_info(meta: Mapping, config: Mapping | None = None, iteration: int
         section = (config or {}).get("hlm") or {}
         hlm = section.get("enabled")
         warmup = section.get("warmup_iters")
-        if hlm and warmup is not None and iteration is not None and int(iteration) < int(warmup):
+        # ``iteration`` counts the updates done; update k (0-based) is the first with L_hie when
+        # k >= warmup_iters, so a checkpoint at iteration <= warmup_iters has had none
+        if hlm and warmup is not None and iteration is not None and int(iteration) <= int(warmup):
             hlm = False  # L_hie had not joined yet
         if vae is None:
             vae = section.get("vanilla_vae")
