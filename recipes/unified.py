@@ -38,6 +38,7 @@ import torch
 from omegaconf import DictConfig
 
 from legoh_rl.modules.configs import PERCEPTION_PRESETS, LocomotionConfig
+from legoh_rl.modules.distributions import set_action_std
 from legoh_rl.modules.locomotion import locomotion_network_class
 from legoh_rl.modules.masked_vae import MaskedVAEConfig
 from legoh_rl.modules.perception import PERCEPTION_BUILDERS
@@ -95,6 +96,7 @@ SETTINGS = {
     "student.perception": Choice(lambda: sorted(PERCEPTION_BUILDERS)),
     "student.preset": Choice(tuple(PERCEPTION_PRESETS)),
     "student.init_std": Number(0, low_open=True, nullable=True),
+    "student.ppo_join_std": Number(0, low_open=True, nullable=True),
     "student.locomotion": Choice(LOCOMOTIONS),
     "student.network": Name(),  # a name in LOCOMOTION_NETWORKS: check_locomotion
     "dagger_iters": Integer(0),
@@ -390,6 +392,10 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
         print(f"perception and locomotion weights from {cfg.checkpoint.init}; the rest starts fresh")
     if path is not None and INIT_KEY in state["meta"]:  # kept by every checkpoint and export of the run
         p.meta[INIT_KEY] = state["meta"][INIT_KEY]
+    join_std = cfg.student.get("ppo_join_std")
+    if join_std is not None and path is None and p.iteration == cfg.dagger_iters:
+        # a run (or branch) that starts where PPO joins: no DAgger update of its own will set it
+        set_action_std(student.actor, float(join_std))
     return p
 
 
@@ -561,6 +567,9 @@ def update(p: UnifiedTrainer, data, iteration: int, cfg: DictConfig) -> dict[str
         stats["train/explained_variance"] = explained_variance(data["state_value"], data["value_target"])
     stats["train/phase_rl"] = float(rl)
     stats["train/hlm_on"] = float(use_hlm)
+    join_std = cfg.student.get("ppo_join_std")
+    if join_std is not None and iteration == cfg.dagger_iters - 1:  # the DAgger phase's last update
+        stats["train/ppo_join_std"] = set_action_std(p.student.actor, float(join_std))
     return stats
 
 

@@ -260,6 +260,7 @@ KINDS = {
         "student.perception": bad_choice(tuple(PERCEPTION_BUILDERS)),
         "student.preset": bad_choice(("cpu", "paper")),
         "student.init_std": bad_num(0, low_open=True, null=True),
+        "student.ppo_join_std": bad_num(0, low_open=True, null=True),
         "student.locomotion": bad_choice(("learned", "oracle")),
         "student.network": bad_choice(tuple(LOCOMOTION_NETWORKS)),
         "dagger_iters": bad_int(0),

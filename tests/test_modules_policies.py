@@ -189,3 +189,19 @@ def test_gaussian_head_std_ceiling():
     assert head.log_std.grad[2] == 0.0 and math.isclose(head.log_std.grad[0].item(), 2 * 0.2, rel_tol=1e-5)
     with pytest.raises(ValueError, match=r"max_std must exceed min_std \(0.0001\), got 0.0"):
         GaussianHead(4, 3, max_std=0.0)
+
+
+def test_set_action_std_sets_every_head_and_refuses_what_it_cannot_set():
+    from torch import nn
+
+    from legoh_rl.modules.distributions import GaussianHead, set_action_std
+
+    net = nn.Sequential(nn.Linear(3, 4), GaussianHead(4, 2, init_std=1.0, max_std=0.8))
+    assert set_action_std(net, 0.3) == 0.3
+    _, scale = net[1](torch.zeros(5, 4))
+    assert torch.allclose(scale, torch.full((5, 2), 0.3))
+    assert net[1].log_std.requires_grad  # it trains on from there
+    with pytest.raises(ValueError, match=r"std 0.9 is outside the head's range \[0.0001, 0.8\]"):
+        set_action_std(net, 0.9)
+    with pytest.raises(ValueError, match="Linear has no GaussianHead"):
+        set_action_std(nn.Linear(2, 2), 0.3)

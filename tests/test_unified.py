@@ -1,5 +1,6 @@
 """The unified (student) recipe on tiny configs (issue 8): DAgger -> PPO + HLM, ablations, resume."""
 
+import json
 import sys
 from pathlib import Path
 
@@ -148,6 +149,36 @@ def test_short_beta_decay_leaves_a_pure_dagger_stretch(teacher, tmp_path):
     assert out["train/dagger_beta"] == 0.0 and out["train/teacher_acted"] == 0.0 and out["train/phase_rl"] == 0.0
     with pytest.raises(ValueError, match=r"dagger_decay_iters must lie in \(0, dagger_iters=4\], got 5"):
         unified.build(tiny(teacher, tmp_path, "dagger_iters=4", "dagger_decay_iters=5"))
+
+
+def test_ppo_join_std_sets_the_action_std_the_ppo_phase_starts_from(teacher, tmp_path):
+    """student.ppo_join_std: the DAgger phase's last update leaves the actor's std at the given
+    value (the first PPO batch samples with it); a run that starts where PPO joins (dagger_iters
+    0) starts from it; without the switch the std is the one training left."""
+    def stds(path):
+        actor = load_checkpoint(path)["actor"]
+        return torch.cat([v.exp() for k, v in actor.items() if k.endswith("log_std")])
+
+    cfg = tiny(teacher, tmp_path / "run", "collector.total_frames=120", "dagger_iters=2", "hlm.warmup_iters=2",
+               "student.ppo_join_std=0.3", "checkpoint.snapshot_every=1")
+    out = unified.train(cfg)
+    assert out["iteration"] == 3 and out["train/phase_rl"] == 1.0
+    rows = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert [r.get("train/ppo_join_std") for r in rows] == [None, 0.3, None]  # set once, at update 1
+    snaps = tmp_path / "run" / "snapshots"
+    assert torch.allclose(stds(snaps / "frames000000080.pt"), torch.tensor(0.3))  # before the first PPO batch
+    assert not torch.allclose(stds(snaps / "frames000000040.pt"), torch.tensor(0.3))
+    assert not torch.allclose(stds(snaps / "frames000000120.pt"), torch.tensor(0.3))  # PPO trains it on
+    plain = unified.train(tiny(teacher, tmp_path / "plain", "collector.total_frames=80", "dagger_iters=2",
+                               "hlm.warmup_iters=2", "checkpoint.snapshot_every=1"))
+    assert "train/ppo_join_std" not in plain
+    assert not torch.allclose(stds(tmp_path / "plain" / "snapshots" / "frames000000080.pt"), torch.tensor(0.3))
+    p = unified.build(tiny(teacher, tmp_path / "join", "dagger_iters=0", "hlm.warmup_iters=0",
+                           "student.ppo_join_std=0.25"))
+    heads = [v for k, v in p.student.actor.state_dict().items() if k.endswith("log_std")]
+    assert heads and all(torch.allclose(v.exp(), torch.tensor(0.25)) for v in heads)
+    with pytest.raises(ValueError, match=r"student.ppo_join_std must be a positive number, got 0 \(or null\)"):
+        unified.build(tiny(teacher, tmp_path / "bad", "student.ppo_join_std=0"))
 
 
 def test_student_of_a_gait_clock_teacher_gets_the_teachers_clock(tmp_path):
@@ -523,3 +554,25 @@ def test_the_g1_student_distilled_again_starts_from_the_committed_g1_student(tmp
     saved = load_checkpoint(root / cfg.checkpoint.init)
     assert all(torch.equal(p.student.actor.state_dict()[k], v) for k, v in saved["actor"].items())
     assert p.meta[unified.INIT_KEY]["experiment"] == "student_g1_foot_scan"
+
+
+def test_the_g1_ppo_join_run_starts_from_the_dagger_end_with_the_lower_std(tmp_path):
+    """student_g1_ppo_join: student_g1_real_pits_init's env, teacher and student from its DAgger
+    end's averaged weights (the committed snapshot), 100 iterations with the student acting alone,
+    then PPO + L_im + L_hie with the action std set to 0.3 at the join, 1,000 iterations."""
+    root = RECIPES.parent
+    cfg = cfg_of("unified", ["experiment=student_g1_ppo_join", f"checkpoint.dir={tmp_path}"])
+    base = cfg_of("unified", ["experiment=student_g1_real_pits_init", f"checkpoint.dir={tmp_path}"])
+    assert cfg.teacher == base.teacher and cfg.env == base.env and cfg.imitation == base.imitation
+    assert {**cfg.student, "ppo_join_std": None} == {**base.student} and cfg.student.ppo_join_std == 0.3
+    assert cfg.dagger_iters == cfg.hlm.warmup_iters == 100 and cfg.dagger_beta0 == 0.0
+    assert cfg.collector.total_frames == 1100 * 64 * 24
+    assert unified.beta_at(0, cfg) == 0.0  # the student acts alone from the start
+    init = load_checkpoint(root / cfg.checkpoint.init)
+    assert init["frames"] == 3_072_000 and init["meta"]["experiment"] == "student_g1_real_pits_init"
+    small = cfg_of("unified", ["experiment=student_g1_ppo_join", f"checkpoint.dir={tmp_path / 'run'}",
+                               f"teacher={root / cfg.teacher}", f"checkpoint.init={root / cfg.checkpoint.init}",
+                               "env.num_envs=8", "env.categories=[randommix]", "env.category_weights=null",
+                               "env.variants=1", "env.num_threads=1", "logger.backend=csv"])
+    p = unified.build(small)
+    assert all(torch.equal(p.student.perception.state_dict()[k], v) for k, v in init["perception"].items())

@@ -21,7 +21,7 @@ from torchrl.modules import IndependentNormal, ProbabilisticActor
 
 from legoh_rl.modules.keys import NestedKey
 
-__all__ = ["GaussianHead", "make_gaussian_actor"]
+__all__ = ["GaussianHead", "make_gaussian_actor", "set_action_std"]
 
 
 class GaussianHead(nn.Module):
@@ -84,3 +84,28 @@ def make_gaussian_actor(
         return_log_prob=True,
         spec=Unbounded(shape=(num_actions,)),
     )
+
+
+def set_action_std(actor: nn.Module, std: float) -> float:
+    """Set the action std of every :class:`GaussianHead` in ``actor`` to ``std`` (all actions;
+    the learnable ``log_std`` keeps training from there). Used where a policy trained on its mean
+    starts to explore (the student's PPO phase: ``student.ppo_join_std``).
+
+    Returns:
+        ``std``.
+
+    Raises:
+        ValueError: ``actor`` has no GaussianHead, or ``std`` is not within a head's
+            ``[min_std, max_std]``.
+    """
+    heads = [m for m in actor.modules() if isinstance(m, GaussianHead)]
+    if not heads:
+        raise ValueError(f"set_action_std: {type(actor).__name__} has no GaussianHead whose std could be set")
+    for head in heads:
+        if not head.min_std <= std <= (head.max_std if head.max_std is not None else math.inf):
+            raise ValueError(f"set_action_std: std {std} is outside the head's range "
+                             f"[{head.min_std}, {head.max_std}]")
+    with torch.no_grad():
+        for head in heads:
+            head.log_std.fill_(math.log(std))
+    return float(std)
