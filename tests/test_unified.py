@@ -536,14 +536,14 @@ def test_init_refuses_what_cannot_start_a_student(teacher, tmp_path):
         unified.build(tiny(teacher, tmp_path / "d", f"checkpoint.init={src / 'last.pt'}"))
 
 
-def test_the_g1_student_distilled_again_starts_from_the_committed_g1_student(tmp_path):
+def test_the_g1_student_distilled_again_starts_from_the_previous_g1_student(tmp_path):
     """student_g1_real_pits_init: student_g1_real_pits (the stage-5 G1 oracle's env and teacher) from
-    checkpoints/student_g1.pt's perception and locomotion weights, on a shorter schedule; the
+    checkpoints/student_g1_foot_scan.pt's perception and locomotion weights, on a shorter schedule; the
     committed student fits the new teacher's env (the same observation layout and gait clock)."""
     root = RECIPES.parent
     cfg = cfg_of("unified", ["experiment=student_g1_real_pits_init", f"checkpoint.dir={tmp_path}"])
     base = cfg_of("unified", ["experiment=student_g1_real_pits", f"checkpoint.dir={tmp_path}"])
-    assert cfg.checkpoint.init == "checkpoints/student_g1.pt" and cfg.teacher == base.teacher
+    assert cfg.checkpoint.init == "checkpoints/student_g1_foot_scan.pt" and cfg.teacher == base.teacher
     assert cfg.env == base.env and cfg.student == base.student and cfg.imitation == base.imitation
     assert cfg.dagger_iters == cfg.hlm.warmup_iters == 2000 and cfg.collector.total_frames == 3000 * 64 * 24
     small = cfg_of("unified", ["experiment=student_g1_real_pits_init", f"checkpoint.dir={tmp_path}",
