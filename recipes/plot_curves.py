@@ -12,7 +12,9 @@ plots the gait signals (goal-velocity tracking, air time, the gait-clock terms) 
 main ones, ``--panels student`` the imitation losses and episode metrics of a unified run.
 ``--panels trails`` plots a whole-benchmark run per category and level (curriculum, success,
 trail completion; grouped success smoothed by episode counts) and the gait feedforward gain.
-``--compare`` overlays the run directories as separate runs instead, one colour each.
+``--compare`` overlays the run directories as separate runs instead, one colour each;
+``--align ppo`` counts each one's env steps from the start of its PPO phase, and ``--panels phase``
+plots what that phase moves (reward, curriculum, imitation loss, episode metrics).
 ``--x hours`` plots against training time (the iterations' collection and update seconds summed,
 start-ups and evaluations left out; or, with ``--rate``, env steps over each run's env steps/s as
 measured on an idle machine in one benchmark run, for runs that shared their machine) instead of env steps: how a GPU run's curve compares with a
@@ -70,7 +72,29 @@ TRAIL_PANELS = [
     ("train/gait_feedforward", "gait feedforward gain"),
     ("reward/total", "reward per step"),
 ]
-PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS, "student": STUDENT_PANELS, "trails": TRAIL_PANELS}
+#: a unified student's PPO phase: how the rollouts (reward, curriculum) and the imitation hold up
+PHASE_PANELS = [
+    ("reward/total", "reward per step"),
+    ("curriculum/mean_level", "mean terrain level"),
+    ("loss/im_action", "im_action (SmoothL1 to the teacher)"),
+    ("episode/success", "success rate (%)"),
+    ("episode/trail_completion", "trail completion (%)"),
+    ("episode/ttf", "time to fall (s)"),
+]
+PANEL_SETS = {"default": PANELS, "gait": GAIT_PANELS, "student": STUDENT_PANELS, "trails": TRAIL_PANELS,
+              "phase": PHASE_PANELS}
+
+
+def since_ppo(rows: list[dict], name: str) -> list[dict]:
+    """``rows`` with ``step`` counted from the first iteration of the run's PPO phase (the first row
+    with ``train/phase_rl`` > 0; earlier rows get negative steps), so that runs whose PPO phases
+    began at different env steps overlay at equal PPO iterations. ``name`` labels the error."""
+    start = next((r["step"] for r in rows if (r.get("train/phase_rl") or 0.0) > 0.0), None)
+    if start is None:
+        raise ValueError(f"{name}: no row with train/phase_rl > 0, so it has no PPO phase to align at")
+    # the first PPO row logs the first batch collected in the phase: that batch's start is step 0
+    step0 = start - (rows[1]["step"] - rows[0]["step"] if len(rows) > 1 else 0)
+    return [{**r, "step": r["step"] - step0} for r in rows]
 
 
 def join_stages(stages: list[list[dict]]) -> tuple[list[dict], list[float]]:
@@ -129,13 +153,14 @@ def _series(run: list[dict], key: str, smooth: int, x: str = "step") -> tuple[li
 
 
 def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_starts: list[float] = (),
-         smooth: int = 1, panels: list[tuple] = PANELS, x: str = "step") -> Path:
+         smooth: int = 1, panels: list[tuple] = PANELS, x: str = "step", xlabel: str | None = None) -> Path:
     """Six panels (``panels``: (metrics key or list of keys, title) pairs) of training signals
     against env steps (``x="step"``) or training hours (``x="train/hours"``, rows from
     :func:`with_hours`).
 
     ``rows``: one run's rows, or ``{label: rows}`` for several runs overlaid (one colour each,
-    with a legend). A panel with several keys draws one line per key (one run only)."""
+    with a legend). A panel with several keys draws one line per key (one run only). ``xlabel``
+    replaces the x axis's default label."""
     runs = rows if isinstance(rows, dict) else {"": rows}
     fig, axes = plt.subplots(2, 3, figsize=(12, 6))
     for ax, (keys, label) in zip(axes.ravel(), panels, strict=True):
@@ -159,7 +184,7 @@ def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_
         for x in stage_starts:
             ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
         ax.set_title(label)
-        ax.set_xlabel("environment steps" if x == "step" else "training hours")
+        ax.set_xlabel(xlabel or ("environment steps" if x == "step" else "training hours"))
         ax.grid(alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
@@ -185,6 +210,10 @@ def main() -> None:
                         help="with --x hours: one env steps/s per run directory, measured for each on an idle "
                              "machine in one benchmark run; hours are then env steps / rate (the runs' own "
                              "iteration times count whatever else shared the machine)")
+    parser.add_argument("--align", choices=("start", "ppo"), default="start",
+                        help="with --compare and --x frames: count each run's env steps from its start, or "
+                             "from the start of its PPO phase (unified students whose PPO phases began at "
+                             "different env steps, compared at equal PPO iterations)")
     args = parser.parse_args()
     if args.rate is not None and (args.x != "hours" or len(args.rate) != len(args.run_dirs)
                                   or any(r <= 0 for r in args.rate)):
@@ -192,8 +221,15 @@ def main() -> None:
                      f"got {args.rate}")
     if args.smooth < 1:
         parser.error(f"--smooth must be >= 1, got {args.smooth}")
+    if args.align == "ppo" and (not args.compare or args.x != "frames"):
+        parser.error("--align ppo needs --compare and --x frames")
     if args.compare:
         rows, starts = {d.name: load(d / "metrics.jsonl") for d in args.run_dirs}, []
+        if args.align == "ppo":
+            try:
+                rows = {name: since_ppo(run, name) for name, run in rows.items()}
+            except ValueError as err:
+                parser.error(str(err))
     else:
         rows, starts = join_stages([load(d / "metrics.jsonl") for d in args.run_dirs])
     x = "step"
@@ -213,7 +249,7 @@ def main() -> None:
             starts = [next(r[x] for r in rows if r["step"] >= s) for s in starts]
     title = args.title or " -> ".join(str(d) for d in args.run_dirs)
     out = plot(rows, args.output or args.run_dirs[-1] / "curves.png", title, starts, args.smooth,
-               PANEL_SETS[args.panels], x)
+               PANEL_SETS[args.panels], x, "environment steps since the PPO phase began" if args.align == "ppo" else None)
     what = "run(s) overlaid" if args.compare else "stage(s)"
     print(f"{sum(map(len, rows.values())) if args.compare else len(rows)} iterations in {len(args.run_dirs)} {what} -> {out}")
 

@@ -296,6 +296,40 @@ def test_plot_curves_overlays_separate_runs(tmp_path, monkeypatch):
     assert [list(line.get_ydata()) for line in ax_sr.lines] == [[40.0, 40.0, 40.0]]  # run a has no values
 
 
+def test_plot_curves_aligns_runs_at_their_ppo_phase(tmp_path, monkeypatch, capsys):
+    """--align ppo: each run's steps count from the first batch of its PPO phase (the batch before
+    the first row with train/phase_rl > 0 ends), so phases that began at different env steps
+    overlay; a run without a PPO phase is refused by name."""
+    import plot_curves
+
+    a = [{"step": s, "train/phase_rl": float(s > 20), "reward/total": 1.0} for s in (10, 20, 30, 40)]
+    b = [{"step": s, "train/phase_rl": float(s > 50), "reward/total": 2.0} for s in (50, 60, 70)]
+    assert [r["step"] for r in plot_curves.since_ppo(a, "a")] == [-10, 0, 10, 20]
+    assert [r["step"] for r in plot_curves.since_ppo(b, "b")] == [0, 10, 20]
+    with pytest.raises(ValueError, match="dagger_only: no row with train/phase_rl > 0"):
+        plot_curves.since_ppo([{"step": 10, "train/phase_rl": 0.0}], "dagger_only")
+    for name, rows in (("run_a", a), ("run_b", b), ("dagger_only", [{"step": 10, "train/phase_rl": 0.0}])):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    figs = []
+    monkeypatch.setattr(plot_curves.plt, "close", figs.append)
+    monkeypatch.setattr(sys, "argv", ["plot_curves.py", str(tmp_path / "run_a"), str(tmp_path / "run_b"), "--compare",
+                                      "--align", "ppo", "--panels", "phase", "-o", str(tmp_path / "p.png")])
+    plot_curves.main()
+    ax = figs[0].axes[0]
+    assert [list(line.get_xdata()) for line in ax.lines] == [[-10, 0, 10, 20], [0, 10, 20]]
+    assert ax.get_xlabel() == "environment steps since the PPO phase began"
+    monkeypatch.setattr(sys, "argv", ["plot_curves.py", str(tmp_path / "run_a"), str(tmp_path / "dagger_only"),
+                                      "--compare", "--align", "ppo"])
+    with pytest.raises(SystemExit):
+        plot_curves.main()
+    assert "dagger_only: no row with train/phase_rl > 0" in capsys.readouterr().err
+    monkeypatch.setattr(sys, "argv", ["plot_curves.py", str(tmp_path / "run_a"), "--align", "ppo"])
+    with pytest.raises(SystemExit):
+        plot_curves.main()
+    assert "--align ppo needs --compare" in capsys.readouterr().err
+
+
 def test_plot_curves_against_training_hours(tmp_path, monkeypatch):
     """--x hours: each row's x is the running sum of its iterations' collection and update
     seconds, in hours; a run that did not log them is refused by step."""
