@@ -22,6 +22,8 @@ from legoh_rl.training.checkpoint import (
     file_digest,
     load_checkpoint,
     recorded_checkpoint,
+    save_checkpoint,
+    warm_start_frames,
 )
 from legoh_rl.training.logging import MetricsFile, trim_csv_logs
 from legoh_rl.training.run_dir import RunDirError, RunDirLock, check_run_dir, open_run_dir
@@ -258,6 +260,35 @@ def test_student_resume_under_another_teacher_is_refused(tmp_path):
                                                "dagger_iters=1", "ppo.num_epochs=1", f"checkpoint.dir={tmp_path / 's'}",
                                                "collector.total_frames=80", "checkpoint.resume=auto"]))
     assert p.frames == 40
+
+
+def test_warm_start_frames_add_up_the_chain_of_initialisations(tmp_path):
+    """A student initialised from B, itself initialised from A, has had A's and B's recorded env
+    steps of training behind its own: 100 + 50. B is found by its digest after a rename; where a
+    link's file is gone or changed, the chain stops at that link's recorded frames; a loop is
+    refused."""
+    def link(name, frames, init=None):
+        meta = {"initialised_from": {"checkpoint": init, "sha256": file_digest(tmp_path / init),
+                                     "frames": load_checkpoint(tmp_path / init)["frames"]}} if init else {}
+        save_checkpoint(tmp_path / name, {"meta": meta, "frames": frames})
+        return load_checkpoint(tmp_path / name)["meta"]
+
+    link("a.pt", 100)
+    link("b.pt", 50, "a.pt")
+    c = {"initialised_from": {"checkpoint": "b.pt", "sha256": file_digest(tmp_path / "b.pt"), "frames": 50}}
+    assert warm_start_frames({}, tmp_path) == 0
+    assert warm_start_frames(load_checkpoint(tmp_path / "b.pt")["meta"], tmp_path) == 100
+    assert warm_start_frames(c, tmp_path) == 150
+    (tmp_path / "b.pt").rename(tmp_path / "b_renamed.pt")  # found by its digest beside the recorded name
+    assert warm_start_frames(c, tmp_path) == 150
+    (tmp_path / "a.pt").unlink()  # the chain stops at b's record of a: a lower bound
+    assert warm_start_frames(c, tmp_path) == 150
+    (tmp_path / "b_renamed.pt").unlink()
+    assert warm_start_frames(c, tmp_path) == 50
+    loop = {"initialised_from": {"checkpoint": "loop.pt", "sha256": None, "frames": 1}}
+    save_checkpoint(tmp_path / "loop.pt", {"meta": loop, "frames": 1})
+    with pytest.raises(CheckpointError, match="'loop.pt' is longer than 16 links"):
+        warm_start_frames(loop, tmp_path)
 
 
 def test_recorded_checkpoint_follows_renames_by_digest_or_the_registry(tmp_path, monkeypatch):

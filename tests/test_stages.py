@@ -159,7 +159,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("oracle_g1_real_pits", "checkpoints/oracle_g1_trails.pt"),
             ("g1_lego_h", "checkpoints/student_g1_clocked.pt"),
             ("student_g1_foot_scan", "checkpoints/student_g1_foot_scan.pt"),
-            ("student_g1_real_pits_init", "checkpoints/student_g1.pt")]
+            ("student_g1_real_pits_init", "checkpoints/student_g1_real_pits_init.pt"),
+            ("student_g1_ppo_join", "checkpoints/student_g1.pt")]
 SECTIONS = {"oracle_ppo": ("env", "ppo", "model"),
             "unified": ("env", "ppo", "student", "dagger_iters", "dagger_beta0", "dagger_decay_iters", "dagger_epochs",
                         "dagger_replay", "imitation", "hlm", "torch_threads")}

@@ -149,7 +149,9 @@ TABLES: dict[str, PaperTable] = {t.name: t for t in (
         PaperRow("G1 (LEGO-H)", "g1_lego_h",
                  _p("63.96±1.03", "38.94±0.63", "62.21±0.97", "5.33±0.68", "7.24±0.22", "8.10±0.08")),
         PaperRow("G1 oracle (ours only)", "g1_oracle", None),
-    ), note="The G1 oracle is not in the paper; it is listed as the teacher of a G1 student. " + _LONGER),
+    ), note="The G1 oracle is not in the paper; it is listed as the teacher of a G1 student. " + _LONGER
+         + " The env steps column counts the steps behind a warm start too: a student started from another's "
+           "weights (`checkpoint.init`) has had their training as well."),
     # \label{tab:hiking_benchmark_terrains}: "EP-H vs RMA-B on each trail category."
     PaperTable("terrains", "tab:hiking_benchmark_terrains", "EP-H vs RMA-B on each trail category", (
         PaperRow("EP-H", "h1_eph", _p("16.98±0.85", "2.67±0.14", "70.88±1.41", "11.32±1.83", "3.33±0.13", "9.73±0.19"),

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from legoh_rl.paper_tables.paper import Value
-from legoh_rl.training.checkpoint import load_checkpoint
+from legoh_rl.training.checkpoint import load_checkpoint, warm_start_frames
 
 __all__ = ["RowSpec", "ROWS", "CheckpointInfo", "checkpoint_info", "describe", "mismatch", "read_info",
            "Resolution", "resolve_row", "across_seeds"]
@@ -187,10 +187,16 @@ def mismatch(spec: RowSpec, info: CheckpointInfo) -> str | None:
     return None
 
 
-def read_info(path: Path) -> CheckpointInfo:
-    """:func:`checkpoint_info` of the checkpoint at ``path`` (loaded to the CPU)."""
+def read_info(path: Path, root: str | Path = ".") -> CheckpointInfo:
+    """:func:`checkpoint_info` of the checkpoint at ``path`` (loaded to the CPU). Its ``frames``
+    count the warm start's too (``checkpoint.init``, :func:`warm_start_frames`, recorded paths read
+    under ``root``, the repository root): a student started from another's weights has had their
+    env steps of training as well."""
     state = load_checkpoint(path)
-    return checkpoint_info(state["meta"], state.get("config"), state.get("iteration"), state.get("frames"))
+    frames = state.get("frames")
+    if frames is not None:
+        frames = int(frames) + warm_start_frames(state["meta"], root)
+    return checkpoint_info(state["meta"], state.get("config"), state.get("iteration"), frames)
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ __all__ = [
     "save_checkpoint", "load_checkpoint", "check_meta", "rng_state", "set_rng_state", "resume_path", "export_policy",
     "CheckpointError", "CheckpointWriteError", "require_training_state", "load_weights", "file_digest",
     "LEGACY_SAFE_GLOBALS", "WEIGHT_KEYS", "check_finite_weights", "widen_input_columns", "RENAMED",
-    "recorded_checkpoint",
+    "recorded_checkpoint", "warm_start_frames",
 ]
 
 #: The only globals :func:`load_checkpoint` allows beyond torch's weights-only set (tensors, plain
@@ -109,6 +109,37 @@ def recorded_checkpoint(path: str, digest: str | None = None, root: str | os.Pat
         if file_digest(other) == digest:
             return str(Path(path).parent / other.name)
     return str(path)
+
+
+def warm_start_frames(meta: dict, root: str | os.PathLike = ".", _depth: int = 0) -> int:
+    """Env steps of training behind a run's warm start: the checkpoint it was initialised from
+    (``meta["initialised_from"]``, :mod:`recipes/unified.py`'s ``checkpoint.init``), that one's own
+    warm start, and so on down the chain; 0 for a run trained from scratch.
+
+    Each link counts the ``frames`` its record holds; the file is found by its recorded digest
+    (:func:`recorded_checkpoint`) and read for the next link. Where it is not found (a state left
+    out of git, a file changed since), the chain stops at that link's recorded frames: the sum is
+    then a lower bound. A chain longer than 16 links is refused as a loop.
+
+    Args:
+        meta: a checkpoint's ``meta`` dict.
+        root: the folder recorded relative paths are read from (the repository root).
+
+    Returns:
+        the env steps, an int >= 0.
+    """
+    init = meta.get("initialised_from")
+    if not init:
+        return 0
+    if _depth >= 16:
+        raise CheckpointError(f"the warm-start chain through {init.get('checkpoint')!r} is longer than 16 links")
+    frames = int(init.get("frames") or 0)
+    digest = init.get("sha256")
+    rel = recorded_checkpoint(init["checkpoint"], digest, root)
+    path = Path(rel) if Path(rel).is_absolute() else Path(root) / rel
+    if not path.is_file() or (digest is not None and file_digest(path) != digest):
+        return frames
+    return frames + warm_start_frames(load_checkpoint(path)["meta"], root, _depth + 1)
 
 
 class CheckpointError(ValueError):
