@@ -67,13 +67,10 @@ def file_digest(path: str | os.PathLike) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-#: Committed checkpoints that took another name after runs had recorded them by path: the path a
-#: record holds -> (the path of that file today, its sha256). ``checkpoints/oracle_h1.pt`` was the
-#: gait-clock oracle until the oracle without the feedforward took its name on 2026-12-04 (issue
-#: 52), and that one (``oracle_h1_foot_scan.pt`` again since 2026-12-05, when the stage-5 oracle
-#: took the name) is found by its digest; so was ``checkpoints/oracle_g1_trails.pt`` until the G1
-#: oracle without it (experiment ``oracle_g1_foot_scan``) took that name, and that one
-#: (``oracle_g1_foot_scan.pt`` since the G1 stage-5 oracle took the name) is found by its digest.
+#: Recorded paths of committed checkpoints that were later renamed: the path a run's record holds
+#: -> (the path of that file today, its sha256), so that records made before a rename still open
+#: the file they meant. Later renames need no entry: such files are found by their digest (see
+#: :func:`recorded_checkpoint`).
 RENAMED = {"checkpoints/oracle_h1.pt": ("checkpoints/oracle_h1_clocked.pt",
                                         "6f815f70da0d4dd2b107ca40b6b68046c113b864a0599ac707424458396194ff"),
            "checkpoints/oracle_g1_trails.pt": ("checkpoints/oracle_g1_trails_clocked.pt",
