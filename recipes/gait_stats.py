@@ -38,29 +38,40 @@ def gait_figures(contact: np.ndarray, lift: np.ndarray, vel_xy: np.ndarray, pos_
         over the walking steps: ``lift_mean``, ``lift_p95``, ``lift_max`` (m); ``airborne``, the
         share of foot-steps off the ground; ``flight``, the share of steps with both feet off
         (a leap or a jump); ``flight_max_s``, the longest such stretch of one robot (s);
+        ``landed``, the share of steps in both-off stretches that end with a foot down and the
+        robot still walking (a leap or a jump it landed: a fall into a pit also lifts both feet,
+        and its stretch ends when the episode does, or with the window) and ``landed_max_s``, the
+        longest of those;
         ``speed`` (m/s, mean horizontal); ``lean_deg``, the mean torso tilt from upright
         (``sqrt(roll^2 + pitch^2)``) and ``lean_p95_deg``; ``detour_m``, the mean over robots of the
         largest sideways (y) distance from where each robot was at the first step.
         NaN each when no step has a walking robot.
     """
-    keys = ("lift_mean", "lift_p95", "lift_max", "airborne", "flight", "flight_max_s", "speed", "lean_deg",
-            "lean_p95_deg", "detour_m")
+    keys = ("lift_mean", "lift_p95", "lift_max", "airborne", "flight", "flight_max_s", "landed", "landed_max_s",
+            "speed", "lean_deg", "lean_p95_deg", "detour_m")
     if not walking.any():
         return dict.fromkeys(keys, float("nan"))
     w = walking
     feet = lift[w]  # (M, 2)
     both_off = ~contact[..., 0] & ~contact[..., 1] & w  # (T, N)
-    longest = 0
-    for n in range(w.shape[1]):  # the longest run of True in each robot's both-off series
+    longest = longest_landed = landed_steps = 0
+    for n in range(w.shape[1]):  # each robot's both-off stretches: the longest, and those it landed
         run = 0
-        for off in both_off[:, n]:
-            run = run + 1 if off else 0
-            longest = max(longest, run)
+        for t, off in enumerate(both_off[:, n]):
+            if off:
+                run += 1
+                longest = max(longest, run)
+                continue
+            if run and w[t, n] and contact[t, n].any():  # a foot down with the robot still walking
+                landed_steps += run
+                longest_landed = max(longest_landed, run)
+            run = 0
     tilt = np.degrees(np.sqrt(roll ** 2 + pitch ** 2))[w]
     side = np.where(w, np.abs(pos_xy[..., 1] - pos_xy[:1, :, 1]), np.nan)  # (T, N)
     return {
         "lift_mean": float(feet.mean()), "lift_p95": float(np.percentile(feet, 95)), "lift_max": float(feet.max()),
         "airborne": float((~contact[w]).mean()), "flight": float(both_off[w].mean()), "flight_max_s": longest * dt,
+        "landed": landed_steps / int(w.sum()), "landed_max_s": longest_landed * dt,
         "speed": float(np.linalg.norm(vel_xy[w], axis=-1).mean()),
         "lean_deg": float(tilt.mean()), "lean_p95_deg": float(np.percentile(tilt, 95)),
         "detour_m": float(np.nanmean(np.nanmax(side, axis=0)[w.any(axis=0)])),
@@ -100,13 +111,15 @@ def gait_stats(checkpoint: str, category: str = "randommix", level: int = 0, rob
 def markdown_row(name: str, s: dict) -> str:
     """One table row of :func:`gait_stats`' figures (cm, %, s, deg, m)."""
     return (f"| {name} | {s['standing']} / {s['robots']} | {s['lift_p95'] * 100:.1f} | {s['airborne'] * 100:.0f} | "
-            f"{s['flight'] * 100:.1f} | {s['flight_max_s']:.2f} | {s['speed']:.2f} | {s['lean_deg']:.1f} | "
+            f"{s['flight'] * 100:.1f} | {s['flight_max_s']:.2f} | {s['landed'] * 100:.1f} | {s['landed_max_s']:.2f} | "
+            f"{s['speed']:.2f} | {s['lean_deg']:.1f} | "
             f"{s['detour_m']:.2f} |")
 
 
 TABLE_HEAD = ("| category | walking at the end | foot lift p95 (cm) | airborne per foot (%) | both feet off (%) | "
-              "longest flight (s) | speed (m/s) | torso tilt (deg) | largest sideways detour (m) |\n"
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+              "longest flight (s) | landed flights (%) | longest landed flight (s) | speed (m/s) | torso tilt (deg) | "
+              "largest sideways detour (m) |\n"
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
 
 
 def main() -> None:
@@ -127,7 +140,8 @@ def main() -> None:
           f"still walking at {args.seconds:g} s")
     print(f"foot lift: mean {s['lift_mean'] * 100:.1f} cm, p95 {s['lift_p95'] * 100:.1f} cm, "
           f"max {s['lift_max'] * 100:.1f} cm; airborne share per foot {s['airborne']:.2f}; both feet off "
-          f"{s['flight']:.3f} of the steps (longest {s['flight_max_s']:.2f} s); speed {s['speed']:.2f} m/s; "
+          f"{s['flight']:.3f} of the steps (longest {s['flight_max_s']:.2f} s), landed {s['landed']:.3f} (longest "
+          f"{s['landed_max_s']:.2f} s); speed {s['speed']:.2f} m/s; "
           f"torso tilt {s['lean_deg']:.1f} deg (p95 {s['lean_p95_deg']:.1f}); largest sideways detour "
           f"{s['detour_m']:.2f} m")
 

@@ -442,6 +442,31 @@ def test_gait_figures_count_flights_tilt_and_detours_by_hand():
     assert f["detour_m"] == pytest.approx((0.0 + 0.3) / 2)
     none = gait_stats.gait_figures(contact, lift, vel, pos, roll, pitch, np.zeros((4, 2), bool), dt=0.02)
     assert all(np.isnan(v) for v in none.values())
+    assert f["landed"] == pytest.approx(2 / 7) and f["landed_max_s"] == pytest.approx(0.04)  # robot 0 lands at step 3
+
+
+def test_gait_figures_tell_a_landed_leap_from_a_fall_into_a_pit():
+    """Three robots, five steps of 0.1 s, both feet off in each: robot 0 leaps at steps 1-2 and lands
+    on one foot at step 3; robot 1 drops at steps 2-3 and its episode ends at step 4 (a fall); robot 2
+    leaves the ground at step 4, the window's last (not known to land)."""
+    import gait_stats
+
+    T, N = 5, 3
+    contact = np.ones((T, N, 2), bool)
+    contact[1:3, 0] = False
+    contact[3, 0, 1] = False                       # robot 0 lands on its left foot
+    contact[2:, 1] = False                         # robot 1 never lands
+    contact[4, 2] = False
+    walking = np.ones((T, N), bool)
+    walking[4, 1] = False                          # robot 1's episode ends at step 4
+    zeros2, zeros = np.zeros((T, N, 2)), np.zeros((T, N))
+    f = gait_stats.gait_figures(contact, np.where(contact, 0.0, 0.2), zeros2, zeros2, zeros, zeros, walking, dt=0.1)
+    walking_steps = 14                             # 5 + 4 + 5
+    assert f["flight"] == pytest.approx((2 + 2 + 1) / walking_steps) and f["flight_max_s"] == pytest.approx(0.2)
+    assert f["landed"] == pytest.approx(2 / walking_steps) and f["landed_max_s"] == pytest.approx(0.2)
+    contact[3:, 0] = False                         # robot 0 is still up when the window ends: none landed
+    g = gait_stats.gait_figures(contact, np.where(contact, 0.0, 0.2), zeros2, zeros2, zeros, zeros, walking, dt=0.1)
+    assert g["landed"] == 0.0 and g["landed_max_s"] == 0.0 and g["flight_max_s"] == pytest.approx(0.4)
 
 
 def test_the_committed_oracle_walks_lifting_its_feet():
