@@ -33,6 +33,7 @@ from omegaconf import DictConfig
 
 from legoh_rl.envs.threads import torch_threads
 from legoh_rl.modules.configs import OracleConfig
+from legoh_rl.modules.distributions import set_action_std
 from legoh_rl.modules.oracle import oracle_network_class, scandot_input_keys
 from legoh_rl.objectives.ppo import (
     AdaptiveKLScheduler,
@@ -93,6 +94,7 @@ KL_MEASURES = ("after_step", "loss_forward")
 SETTINGS = {
     "model.init_std": Number(0, low_open=True),
     "model.max_std": Number(0, low_open=True, nullable=True),
+    "model.start_std": Number(0, low_open=True, nullable=True),  # start_action_std
     "model.network": Name(),  # a name in ORACLE_NETWORKS: oracle_network_class
     "checkpoint.init": Name(nullable=True),
     "checkpoint.init_widen": Flag(),  # zero weights on the scandot columns checkpoint.init's networks lack
@@ -125,6 +127,9 @@ def validate(cfg: DictConfig) -> None:
     require_count("collector", cfg.collector, "steps_per_env", "total_frames")
     require_count("checkpoint", cfg.checkpoint, "every")
     require_count("", cfg, "torch_threads")
+    start, ceiling = cfg.model.get("start_std"), cfg.model.get("max_std")
+    if start is not None and ceiling is not None and float(start) > float(ceiling):
+        raise ValueError(f"model.start_std={start} is above model.max_std={ceiling}: the std would be capped at once")
     resolve_device(cfg.get("device"))
     runner.collector_workers(cfg)
     if cfg.get("update_threads") is not None:
@@ -390,6 +395,7 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
         if cfg.checkpoint.get("init") is not None:
             trainer.lineage = init_networks(networks, env, cfg.checkpoint.init,
                                             widen=bool(cfg.checkpoint.get("init_widen", False)))
+            start_action_std(cfg, actor, "checkpoint.init")
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
@@ -416,7 +422,29 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
             trainer.generator.set_state(state["minibatch_rng"])
         trainer.iteration, trainer.frames, trainer.run_id = state["iteration"], state["frames"], state.get("run_id")
         print(f"resumed from {path}: iteration {state['iteration']}, {state['frames']} frames")
+        if Path(path).resolve().parent != Path(cfg.checkpoint.dir).resolve():  # another run's state: a new stage
+            start_action_std(cfg, actor, str(path))
     return trainer
+
+
+def start_action_std(cfg: DictConfig, actor: torch.nn.Module, source: str) -> float | None:
+    """Set every action std of ``actor`` to ``model.start_std`` (when set) at the start of a run
+    that begins from another run's networks (``checkpoint.init``, or a stage resuming the previous
+    stage's ``last.pt``); a run resuming its own ``last.pt`` never calls this, so it resumes exactly.
+
+    Why: the head's ``exp(log_std)`` is clamped at ``model.max_std``, and a clamp passes no gradient
+    above its ceiling, so a ``log_std`` that once rose past it stays there: the std is then a
+    constant, not learned. Set at or under the ceiling, it is learned again from there.
+
+    Returns:
+        the std set, or ``None`` (``model.start_std`` is null).
+    """
+    std = cfg.model.get("start_std")
+    if std is None:
+        return None
+    set_action_std(actor, float(std))
+    print(f"action std set to {float(std):g} on every action (model.start_std; the networks from {source})")
+    return float(std)
 
 
 def train(cfg: DictConfig, env=None) -> dict:

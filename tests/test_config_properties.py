@@ -245,6 +245,7 @@ KINDS = {
         "recipe": bad_choice(("oracle_ppo",), null=True),
         "model.init_std": bad_num(0, low_open=True),
         "model.max_std": bad_num(0, low_open=True, null=True),
+        "model.start_std": bad_num(0, low_open=True, null=True),
         "model.network": bad_choice(tuple(ORACLE_NETWORKS)),
         "model.layers": bad_list(st.integers(1, 64), bad_int(1), null=True),
         "checkpoint.init": bad_name(null=True),

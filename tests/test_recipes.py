@@ -417,6 +417,27 @@ def test_gait_stats_read_feet_on_the_ground_for_a_standing_robot():
         gait_stats.gait_stats("zero", seconds=0.5)
 
 
+def test_action_noise_acts_with_the_std_it_sets_and_refuses_a_policy_without_one(tmp_path):
+    """recipes/action_noise.py on a tiny oracle: std 0 is the mean action (no spread, the same
+    outcome twice), a set std is the spread of action - loc it measures (past the run's max_std);
+    the zero-action baseline has no std to set."""
+    import action_noise
+    from legoh_rl.training.checkpoint import export_policy
+
+    ck = tmp_path / "ck"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["collector.total_frames=32", f"checkpoint.dir={ck}", "model.max_std=0.5"]))
+    slim = str(export_policy(ck / "last.pt", tmp_path / "oracle.pt"))
+    rows = action_noise.noise_success(slim, "randommix", 0, robots=4, seconds=0.6, variants=1, stds=(0.0, 0.8, 0.0))
+    assert [r["std"] for r in rows] == [0.0, 0.8, 0.0] and rows[0]["realised_std"] == 0.0
+    assert rows[1]["realised_std"] == pytest.approx(0.8, rel=0.1)  # over 0.6 s x 4 robots x every action
+    assert (rows[0]["ended"], rows[0]["success"]) == (rows[2]["ended"], rows[2]["success"])
+    assert all(0 <= r["success"] <= r["ended"] <= r["robots"] == 4 for r in rows)
+    with pytest.raises(ValueError, match="no Gaussian head"):
+        action_noise.noise_success("zero", "randommix", 0, robots=1, seconds=0.1, variants=1, stds=(0.3,))
+    with pytest.raises(ValueError, match=r"action stds must be >= 0, got \[-0.1\]"):
+        action_noise.noise_success(slim, stds=(-0.1,))
+
+
 def test_gait_figures_count_flights_tilt_and_detours_by_hand():
     """Two robots, four steps of 0.02 s: robot 0 leaps (both feet off at steps 1-2), robot 1 walks
     one foot at a time and falls after step 2 (its last step not counted)."""

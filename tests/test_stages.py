@@ -133,6 +133,64 @@ def test_a_staged_oracle_trains_every_stage_and_exports_its_policy(tmp_path):
     assert load_checkpoint(tmp_path / "stage2-walk" / "last.pt")["frames"] == 64 and again["policy"] == out["policy"]
 
 
+def _action_std(trainer):
+    from legoh_rl.modules.distributions import GaussianHead
+
+    (head,) = [m for m in trainer.actor.modules() if isinstance(m, GaussianHead)]
+    return head.log_std.detach().exp()
+
+
+def test_start_std_sets_the_std_where_a_stage_begins_and_never_on_its_own_resume(tmp_path):
+    """model.start_std: stage 2 starts from stage 1's state with every action std at 0.25 (stage 1's
+    is init_std, 1.0, and learned), a std under max_std that a gradient reaches again; resuming stage
+    2's own last.pt keeps the std it saved; a start_std above max_std is refused before any work."""
+    stages = {"start": {"frames": 32, "overrides": {}},
+              "quiet": {"frames": 64, "overrides": {"model": {"start_std": 0.25, "max_std": 0.3}}}}
+    cfg = cfg_of("oracle_ppo", TINY + [f"checkpoint.dir={tmp_path}", "experiment_name=tiny", "model.init_std=1.0"], stages)
+    run_experiment(cfg, oracle_ppo.train, "oracle_ppo")
+    one = load_checkpoint(tmp_path / "stage1-start" / "last.pt")
+    assert torch.allclose(one["networks"]["actor.head.log_std"].exp(), torch.ones(1), atol=0.05)  # init_std, barely moved
+    parsed = parse_stages(cfg.stages)
+    begin = stage_config(cfg, parsed, 1)
+    with open_dict(begin):
+        begin.checkpoint.resume = str(tmp_path / "stage1-start" / "last.pt")  # as when stage 2 began
+        begin.checkpoint.dir = str(tmp_path / "probe")  # (stage 2's own folder holds its checkpoint by now)
+    std = _action_std(oracle_ppo.build(begin))
+    assert torch.allclose(std, torch.full_like(std, 0.25))
+    two = load_checkpoint(tmp_path / "stage2-quiet" / "last.pt")
+    saved = two["networks"]["actor.head.log_std"].exp()
+    assert not torch.allclose(saved, torch.full_like(saved, 0.25))  # learned from there: a gradient reached it
+    again = _action_std(oracle_ppo.build(stage_config(cfg, parsed, 1)))  # its own last.pt: the std it saved
+    assert torch.equal(again, saved)
+    bad = cfg_of("oracle_ppo", TINY + [f"checkpoint.dir={tmp_path / 'bad'}", "model.start_std=0.4", "model.max_std=0.3"])
+    with pytest.raises(ValueError, match=r"model.start_std=0.4 is above model.max_std=0.3"):
+        oracle_ppo.validate(bad)
+
+
+def test_the_low_std_stage_is_stage5s_state_with_only_the_action_std_changed():
+    """oracle_h1_low_std: stage 1 is the same copy of stage 5's whole 20.0M-frame state as
+    oracle_h1_free_gait's; stage 2 trains to the control's 40M frames with the control's settings but
+    the action std (set to 0.25, capped at 0.3)."""
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_low_std"])
+    stages = parse_stages(cfg.stages)
+    assert [s.name for s in stages] == ["real_pits", "low_std"]
+    first, second = stage_config(cfg, stages, 0), stage_config(cfg, stages, 1)
+    copy = load_checkpoint(ROOT / first.checkpoint.dir / "last.pt")
+    free = cfg_of("oracle_ppo", ["experiment=oracle_h1_free_gait"])
+    theirs = load_checkpoint(ROOT / stage_config(free, parse_stages(free.stages), 0).checkpoint.dir / "last.pt")
+    assert copy["frames"] == theirs["frames"] == stages[0].frames
+    assert copy["iteration"] == theirs["iteration"] and all(torch.equal(copy["networks"][k], theirs["networks"][k]) for k in theirs["networks"])
+    control = cfg_of("oracle_ppo", ["experiment=oracle_h1_real_pits_long"])
+    assert second.collector.total_frames == control.collector.total_frames == 40_000_000
+    assert (second.model.start_std, second.model.max_std) == (0.25, 0.3)
+    assert copy["networks"]["actor.head.log_std"].exp().min() > 0.5  # why: the std stood above its old ceiling
+    for key in ("env", "ppo"):
+        assert OmegaConf.to_container(second[key], resolve=True) == OmegaConf.to_container(control[key], resolve=True), key
+    mine, theirs_model = OmegaConf.to_container(second.model), OmegaConf.to_container(control.model)
+    assert {k: v for k, v in mine.items() if k not in ("start_std", "max_std")} == \
+        {k: v for k, v in theirs_model.items() if k not in ("start_std", "max_std")}
+
+
 @pytest.mark.parametrize("path", EXPERIMENTS, ids=[p.stem for p in EXPERIMENTS])
 def test_every_experiment_names_itself_and_its_recipe(path):
     recipe = OmegaConf.load(path).get("recipe")
