@@ -30,7 +30,9 @@ class GaussianHead(nn.Module):
     ``loc = Linear(features)`` (or ``loc_bound * tanh(Linear(features))`` when
     ``loc_bound`` is set); ``scale = exp(log_std)`` is a learnable per-action parameter,
     independent of the state, initialised to ``init_std``, floored at ``min_std`` and, when
-    ``max_std`` is set, capped there (exploration noise that cannot grow past a ceiling).
+    ``max_std`` is set, capped there (exploration noise that cannot grow past a ceiling). The cap
+    is a clamp: while ``exp(log_std)`` stands above it no gradient reaches ``log_std``, so the std
+    stays at the ceiling until :func:`set_action_std` sets it under (``model.start_std``).
     """
 
     def __init__(
