@@ -422,6 +422,7 @@ def test_action_noise_acts_with_the_std_it_sets_and_refuses_a_policy_without_one
     outcome twice), a set std is the spread of action - loc it measures (past the run's max_std);
     the zero-action baseline has no std to set."""
     import action_noise
+
     from legoh_rl.training.checkpoint import export_policy
 
     ck = tmp_path / "ck"
