@@ -22,7 +22,7 @@ import torch
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from tqdm import tqdm
 
-from legoh_rl.modules.distributions import GaussianHead
+from legoh_rl.modules.distributions import GaussianHead, set_action_std
 from legoh_rl.training.policies import load_cell_policy
 from legoh_rl.training.probes import probe_parser
 
@@ -52,10 +52,9 @@ def noise_success(checkpoint: str, category: str = "gap", level: int = 2, robots
         heads = [m for m in policy.modules() if isinstance(m, GaussianHead)]
         if not heads:
             raise ValueError(f"{checkpoint}: its policy has no Gaussian head whose action std could be set")
-        for head in heads:  # the probe sets the std itself, past any ceiling the run trained under
+        for head in heads:  # the probe sets the std past any ceiling the run trained under
             head.max_std = None
-            with torch.no_grad():
-                head.log_std.fill_(math.log(max(std, head.min_std)))
+        set_action_std(policy, max(std, max(h.min_std for h in heads)))
         torch.manual_seed(seed)
         ended = np.zeros(robots, dtype=bool)
         success = np.zeros(robots, dtype=bool)
