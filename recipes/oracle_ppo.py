@@ -201,7 +201,7 @@ def init_networks(networks, env, path: str, widen: bool = False) -> dict:
     """Start a fresh run from the networks of a policy file (slim export or training checkpoint).
 
     ``widen`` (``checkpoint.init_widen``): the file's networks read narrower scandots than this
-    run's env gives (a policy trained before ``env.foot_scan``): the first layers that read the
+    run's env gives (a policy trained before ``env.foot_scan`` or ``env.foot_scan_far``): the first layers that read the
     scandots (:func:`~legoh_rl.modules.oracle.scandot_input_keys`: the actor's and the critic's
     encoders) start with the file's weights on the old columns and zeros on the new ones
     (:func:`~legoh_rl.training.checkpoint.widen_input_columns`), every other weight is copied, so
@@ -228,8 +228,8 @@ def init_networks(networks, env, path: str, widen: bool = False) -> dict:
         k = narrower[0]
         raise ValueError(f"checkpoint.init: {path}'s {k} is {tuple(weights[k].shape)}, this run's {tuple(own[k].shape)}: "
                          f"its networks read {weights[k].shape[-1]} scandot columns, this run's env gives {width} "
-                         f"(env.foot_scan={env.cfg.foot_scan}); set checkpoint.init_widen=true to start from it with "
-                         "zero weights on the new columns")
+                         f"(env.foot_scan={env.cfg.foot_scan}, env.foot_scan_far={env.cfg.foot_scan_far}); "
+                         "set checkpoint.init_widen=true to start from it with zero weights on the new columns")
     if widen and not narrower:
         raise ValueError(f"checkpoint.init_widen=true: {path}'s networks read this run's {width} scandot columns "
                          "already: nothing to widen (drop checkpoint.init_widen)")
@@ -239,9 +239,10 @@ def init_networks(networks, env, path: str, widen: bool = False) -> dict:
     if widen:  # the widening accounts for the scandots' layout: all else must match
         weights, layers = widen_input_columns(weights, own, keys, path)
         expected["obs_layout"] = {**expected["obs_layout"], "scandots": meta.get("obs_layout", {}).get("scandots")}
-        expected.pop("foot_scan", None)
-        if "foot_scan" in meta:
-            expected["foot_scan"] = meta["foot_scan"]
+        for key in ("foot_scan", "foot_scan_far"):  # the columns the widening adds may be either scan
+            expected.pop(key, None)
+            if key in meta:
+                expected[key] = meta[key]
         old = int(state["networks"][narrower[0]].shape[-1])
         record = {WIDENED_KEY: {"checkpoint": str(path), "scandots": [old, width], "layers": layers}}
     check_meta(meta, expected, path)

@@ -403,7 +403,8 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
 INIT_KEY = "initialised_from"
 #: what a student policy must share with this run to start it: the robot, what it observes and acts
 #: on, the gait clock its proprioception carries, and its perception (the teacher may differ)
-INIT_META = ("robot", "num_actions", "obs_layout", "gait_period", "gait_stance", "foot_scan", "perception", "preset")
+INIT_META = ("robot", "num_actions", "obs_layout", "gait_period", "gait_stance", "foot_scan", "foot_scan_far", "perception",
+             "preset")
 
 
 def init_student(p: UnifiedTrainer, path: str) -> dict:

@@ -300,6 +300,30 @@ def test_foot_scan_extends_scandots_and_reads_a_step_ahead_of_the_feet():
     assert torch.equal(td["scandots"][:, :132], make(n=1, scene=BoxScene(boxes=[step]), **quiet()).reset()["scandots"])
 
 
+def test_the_far_foot_scan_follows_the_near_one_and_reads_a_step_beyond_its_reach():
+    """``foot_scan_far``: 70 columns after the near scan's 90 (both feet's 35, left first); the
+    near columns are those of a ``foot_scan`` env alone. A 5 cm step from x = 0.475, past the near
+    grid's 0.3 m, lies under far rows 3-6 (0.5-0.65 m ahead of the ankles at x = 0) and not under
+    rows 0-2 (0.35-0.45 m) nor any near row. ``foot_scan_far`` alone is refused."""
+    step = ([1.2375, 0.0, 0.025], [0.7625, 2.0, 0.025])
+    env = make(n=1, scene=BoxScene(boxes=[step]), foot_scan=True, foot_scan_far=True, **quiet())
+    assert env.observation_spec["scandots"].shape == (1, 132 + 90 + 70)
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    feet = env.worlds.xpos[0, env.built.foot_body_ids]
+    np.testing.assert_allclose(feet[:, 0], 0.0, atol=1e-3)
+    floor = -(feet[:, 2] - env.robot.foot_rest_height)[:, None, None]
+    far = td["scandots"][0, 222:].reshape(2, 7, 5).double().numpy()
+    np.testing.assert_allclose(far[:, :3], np.broadcast_to(floor, (2, 3, 5)), atol=1e-6)
+    np.testing.assert_allclose(far[:, 3:], np.broadcast_to(floor + 0.05, (2, 4, 5)), atol=1e-6)
+    near = make(n=1, scene=BoxScene(boxes=[step]), foot_scan=True, **quiet()).reset()["scandots"]
+    assert near.shape == (1, 222) and torch.equal(td["scandots"][:, :222], near)
+    np.testing.assert_allclose(near[0, 132:].reshape(2, 45).double().numpy(),
+                               np.broadcast_to(floor[:, :, 0], (2, 45)), atol=1e-6)
+    with pytest.raises(ValueError, match=r"foot_scan_far=True .* needs foot_scan=True"):
+        make(n=1, foot_scan_far=True, **quiet())
+
+
 def test_bad_actions():
     env = make(n=2)
     env.reset()

@@ -735,6 +735,39 @@ def test_init_widen_starts_a_foot_scan_run_acting_as_the_narrower_policy(tmp_pat
     assert policy(env.reset())["action"].shape == (1, env.A)
 
 
+def test_init_widen_starts_a_far_scan_run_from_a_foot_scan_policy(tmp_path):
+    """A foot-scan policy (222 scandot columns) starts a ``foot_scan_far`` run (292) with
+    checkpoint.init_widen: the far scan's 70 columns come after the near scan's, so the widened
+    first layers keep the policy's 222 columns and act as it did; the meta block records the far
+    scan and the widening, and evaluation rebuilds both scans from it."""
+    from legoh_rl.training.builders import policy_env_kwargs
+    from legoh_rl.training.evaluation import EvalProtocol
+    from legoh_rl.training.policies import load_policy
+
+    src = tmp_path / "src"
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + ["env.foot_scan=true", "collector.total_frames=32",
+                                                  f"checkpoint.dir={src}"]))
+    far = TINY + ["env.foot_scan=true", "env.foot_scan_far=true", f"checkpoint.init={src / 'last.pt'}",
+                  "collector.total_frames=32"]
+    with pytest.raises(ValueError, match=r"\(128, 222\), this run's \(128, 292\).*env.foot_scan_far=True"):
+        oracle_ppo.build(cfg_of("oracle_ppo", far + [f"checkpoint.dir={tmp_path / 'refused'}"]))
+    cfg = cfg_of("oracle_ppo", far + ["checkpoint.init_widen=true", f"checkpoint.dir={tmp_path / 'far'}"])
+    parts = oracle_ppo.build(cfg)
+    assert parts.meta["init_widened"]["scandots"] == [222, 292]
+    assert parts.meta["foot_scan"] is True and parts.meta["foot_scan_far"] is True
+    old = load_checkpoint(src / "last.pt")["networks"]["scandot_encoder.0.weight"]
+    new = parts.networks.state_dict()["scandot_encoder.0.weight"]
+    assert torch.equal(new[:, :222], old) and not new[:, 222:].any()
+    oracle_ppo.train(cfg, env=parts.env)
+    saved = load_checkpoint(tmp_path / "far" / "last.pt")
+    assert policy_env_kwargs(saved["meta"])["foot_scan_far"] is True
+    assert policy_env_kwargs(load_checkpoint(src / "last.pt")["meta"])["foot_scan_far"] is False
+    env, policy, kind = load_policy(str(tmp_path / "far" / "last.pt"),
+                                    EvalProtocol(categories=("gap",), levels=(1,), robots_per_cell=1))
+    assert env.cfg.foot_scan_far and env.observation_spec["scandots"].shape == (1, 292)
+    assert policy(env.reset())["action"].shape == (1, env.A)
+
+
 def test_init_path_missing_is_refused(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"checkpoint.init: no policy at /nope/policy.pt"):
         oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["checkpoint.init=/nope/policy.pt", f"checkpoint.dir={tmp_path}"]))

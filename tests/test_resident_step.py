@@ -133,24 +133,25 @@ def test_resident_env_specs():
 
 
 def test_foot_scan_of_the_resident_step_equals_the_host_steps():
-    """``foot_scan``: the feet's scan, read on the device from Warp's body arrays and the device's
-    height map, is the host's, on robots spawned among level-1 gaps (their feet over the pits'
-    walls); both envs pass torchrl's spec check. At a wall the terrain drops 1 m over one 0.1 m
+    """``foot_scan`` with ``foot_scan_far``: the feet's near and far scans, read on the device from
+    Warp's body arrays and the device's height map, are the host's, on robots spawned among level-1
+    gaps (their feet over the pits' walls); both envs pass torchrl's spec check. At a wall the terrain drops 1 m over one 0.1 m
     grid cell: the device's float32 sample points (float32 spacing ~2e-6 m at x ~ 20 m, a few of
     those after the rotation) then move a height by up to ~4e-5, so the scan is held to 1e-4
     there and to 1e-5 on 95% of its points (the flat ones)."""
     trails = trails_for(("gap",), 1, 3)
     trails.tile_start = trails.tile_waypoint.copy()  # spawn mid-trail, among the gaps
-    kw = dict(mode="oracle", foot_scan=True, categories=("gap",), levels=(1,), variants=1)
+    kw = dict(mode="oracle", foot_scan=True, foot_scan_far=True, categories=("gap",), levels=(1,), variants=1)
     host = HikingEnv(HikingEnvConfig(**BASE, **kw), trails=trails)
     res = HikingEnv(HikingEnvConfig(**BASE, resident=True, **kw), trails=trails)
-    assert host.observation_spec["scandots"].shape == res.observation_spec["scandots"].shape == (N, 132 + 90)
+    assert host.observation_spec["scandots"].shape == res.observation_spec["scandots"].shape == (N, 132 + 90 + 70)
     for nh, nr in rollout_both(host, res, 6, scale=1.0):
         assert_same_outputs(nh.exclude("scandots"), nr.exclude("scandots"))
         feet_h, feet_r = nh["scandots"][:, 132:], nr["scandots"][:, 132:]
         assert torch.allclose(feet_h, feet_r, atol=1e-4, rtol=0.0)
         assert ((feet_h - feet_r).abs() < 1e-5).float().mean() > 0.95
-    assert feet_h.reshape(N, 2, 45).std(-1).max() > 0.3  # the scan sees the gaps, not a flat floor
+    assert feet_h[:, :90].reshape(N, 2, 45).std(-1).max() > 0.3  # the scans see the gaps, not a flat floor
+    assert feet_h[:, 90:].reshape(N, 2, 35).std(-1).max() > 0.3
     check_env_specs(res, seed=0)
     check_env_specs(host, seed=0)
 

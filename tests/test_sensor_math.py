@@ -6,8 +6,10 @@ import pytest
 import torch
 
 from legoh_rl.envs.sensors import (
+    FOOT_SCAN_FAR_OFFSETS,
     FOOT_SCAN_OFFSETS,
     foot_scan,
+    foot_scan_blocks,
     quat_to_rotmat,
     scandot_offsets,
     scandots,
@@ -89,6 +91,35 @@ def test_foot_scan_reads_the_sole_level_on_a_floor_and_a_pits_depth_at_its_point
     left, right = scan(pit(1.5))
     np.testing.assert_array_equal(left[5:], -1.0)
     np.testing.assert_array_equal(right[:, :3], -1.0)
+
+
+def test_the_far_foot_scan_continues_the_grid_to_65_cm_after_the_near_one():
+    assert foot_scan_blocks() == (FOOT_SCAN_OFFSETS,)
+    near, far = foot_scan_blocks(far=True)
+    assert near is FOOT_SCAN_OFFSETS and far is FOOT_SCAN_FAR_OFFSETS and far.shape == (35, 2)
+    grid = far.reshape(7, 5, 2)
+    np.testing.assert_allclose(grid[:, 0, 0], [0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65], atol=1e-12)
+    np.testing.assert_allclose(grid[0, :, 1], FOOT_SCAN_OFFSETS.reshape(9, 5, 2)[0, :, 1], atol=1e-12)
+
+
+def test_the_far_foot_scan_sees_a_pits_far_rim_that_the_near_one_does_not():
+    """A foot with its ankle at x = 0.6 heading +x, its sole on the floor, 0.1 m before a pit 0.4 m
+    wide (x in (0.7, 1.1), 1 m deep): the near grid (rows at x = 0.5-0.9) reads the floor up to the
+    near rim and the pit beyond it, never the far floor; the far grid (rows at x = 0.95-1.25) reads
+    the pit on its rows 0-2 and the floor from the far rim (row 3, x = 1.1) on."""
+    rest = 0.065
+    pos = np.array([[[0.6, 0.0, rest], [0.6, 0.3, rest]]])
+    quat = np.array([[[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]])
+
+    def height(xy):
+        return np.where((xy[:, 0] > 0.7 + 1e-9) & (xy[:, 0] < 1.1 - 1e-9), -1.0, 0.0)
+
+    near, far = (foot_scan(pos, quat, xy, height, rest) for xy in foot_scan_blocks(far=True))
+    near, far = near.reshape(2, 9, 5)[0], far.reshape(2, 7, 5)[0]  # the left foot's (forward, left)
+    np.testing.assert_array_equal(near[:5], 0.0)  # x = 0.5-0.7: the floor up to the near rim
+    np.testing.assert_array_equal(near[5:], -1.0)  # x = 0.75-0.9: over the pit, no far floor in sight
+    np.testing.assert_array_equal(far[:3], -1.0)  # x = 0.95-1.05: still the pit
+    np.testing.assert_array_equal(far[3:], 0.0)  # x = 1.1-1.25: the far rim and the floor past it
 
 
 def test_yaw_from_quat_on_tensors_and_stacked_quaternions():

@@ -73,6 +73,10 @@ class HikingEnvConfig:
             apart, in the foot's yaw frame), so ``scandots`` grows from (132,) to (132 + 2 x 45,).
             A privileged input of the oracle (the student reads no scandots; its env computes
             them for its teacher). Not in the paper (docs/observations.md).
+        foot_scan_far: extend the foot scan forward: heights at
+            :data:`~legoh_rl.envs.sensors.FOOT_SCAN_FAR_OFFSETS` (35 points per foot, 0.35-0.65 m
+            ahead of the ankle) after the near scan's, so ``scandots`` grows to (132 + 2 x 45 + 2 x 35,).
+            Needs ``foot_scan``. Not in the paper (docs/observations.md).
         depth: render the head depth camera (default: off in oracle mode, on otherwise).
         depth_camera: resolution (64x64 default; 128x128 paper), clipping, noise.
         perception_every: control steps per depth frame (5 = 10 Hz at 50 Hz control).
@@ -155,6 +159,7 @@ class HikingEnvConfig:
     variants: int = setting(2, Integer(1))
     pit_depths: tuple[float, ...] | None = setting(None, ListOf(Number(0, low_open=True), nullable=True))
     foot_scan: bool = setting(False, Flag())
+    foot_scan_far: bool = setting(False, Flag())
     depth: bool | None = setting(None, Flag(nullable=True))
     depth_camera: DepthCameraConfig = field(default_factory=DepthCameraConfig)
     perception_every: int = setting(5, Integer(1))
@@ -203,6 +208,8 @@ class HikingEnvConfig:
             if self.reward_overrides.get(term, 0.0) and not self.gait_period:
                 raise ValueError(f"reward term {term} needs a gait clock: set gait_period > 0 "
                                  f"(got gait_period={self.gait_period!r})")
+        if self.foot_scan_far and not self.foot_scan:
+            raise ValueError("foot_scan_far=True extends the foot scan: it needs foot_scan=True (got foot_scan=False)")
         if self.gait_feedforward and not self.gait_period:
             raise ValueError(f"gait_feedforward={self.gait_feedforward!r} needs a gait clock: set gait_period > 0 "
                              f"(got gait_period={self.gait_period!r})")

@@ -41,6 +41,8 @@ __all__ = [
     "scandot_offsets",
     "scandots",
     "FOOT_SCAN_OFFSETS",
+    "FOOT_SCAN_FAR_OFFSETS",
+    "foot_scan_blocks",
     "foot_scan",
     "quat_to_rotmat",
     "yaw_from_quat",
@@ -434,6 +436,30 @@ def scandot_offsets() -> np.ndarray:
 #: covers the sole and ~0.13 m ahead of the toe, where a foot landing short of a stone sees the
 #: stone's edge; the scandots' 0.15 m spacing is coarser than that miss.
 FOOT_SCAN_OFFSETS = _xy_grid(np.linspace(-0.10, 0.30, 9), np.linspace(-0.10, 0.10, 5))
+
+#: The far foot scan's sample points in a foot's yaw frame, (35, 2) m (``HikingEnvConfig.foot_scan_far``):
+#: a 7 x 5 grid at 0.05 m, x in [0.35, 0.65] forward of the ankle (past :data:`FOOT_SCAN_OFFSETS`'
+#: reach, same lateral columns), x-major. From a foot standing at a pit's near rim it reaches the
+#: far rim of Gap's level-3 pits (0.44 m wide, the ankle ~0.17 m behind the toe), which the near
+#: grid does not: the oracle then reads a pit's width where it takes off, not only under the
+#: swinging foot.
+FOOT_SCAN_FAR_OFFSETS = _xy_grid(np.linspace(0.35, 0.65, 7), np.linspace(-0.10, 0.10, 5))
+
+
+def foot_scan_blocks(far: bool = False) -> tuple[np.ndarray, ...]:
+    """The foot scan's blocks of sample points, in the order their heights follow the scandots.
+
+    Each block is scanned under both feet (:func:`foot_scan`: the left foot's heights, then the
+    right's) before the next block, so ``far`` appends columns after the near scan's ``2 x 45``
+    and a policy trained without it widens onto it (``checkpoint.init_widen``).
+
+    Args:
+        far: add :data:`FOOT_SCAN_FAR_OFFSETS` after :data:`FOOT_SCAN_OFFSETS`.
+
+    Returns:
+        ``(FOOT_SCAN_OFFSETS,)`` or ``(FOOT_SCAN_OFFSETS, FOOT_SCAN_FAR_OFFSETS)``, each (K_b, 2).
+    """
+    return (FOOT_SCAN_OFFSETS, FOOT_SCAN_FAR_OFFSETS) if far else (FOOT_SCAN_OFFSETS,)
 
 
 def scandots(

@@ -21,7 +21,7 @@ The per-world state a subclass keeps (N worlds, A actions, G goals slots; arrays
   ``last_contact`` (N, 2) bool, ``feet_xy_prev`` (N, 2, 2), ``episode_step`` (N,) int, ``tick``
   (N,) bool, ``metrics`` (:class:`~legoh_rl.envs.metrics.EpisodeMetrics`);
 * constants ``q_default`` (A,), ``q_soft_limits`` (A, 2), ``hip_idx`` (H,) and ``scandot_xy`` (K, 2);
-  ``foot_scan_xy`` (K_f, 2) with ``cfg.foot_scan``;
+  ``foot_scan_xy``, the foot scan's blocks of points, each (K_b, 2) (empty without ``cfg.foot_scan``);
 * ``cfg``, ``dt``, ``robot``, ``weights``, ``max_steps`` (the env's);
 
 and the lookups that differ by where the terrain and the camera live (:class:`StepQuantities`
@@ -51,8 +51,9 @@ class StepQuantities:
 
     * ``_scandots(pos, yaw)``: (N, K) terrain heights around bases at ``pos`` (N, 3) with headings
       ``yaw`` (N,), relative to the nominal ground, clipped to [-1, 1];
-    * ``_foot_scan(sel)``: (n, 2 K_f) terrain heights around the feet of worlds ``sel`` (a slice
-      or (n,) indices), relative to their soles, clipped to [-1, 1] (read with ``cfg.foot_scan``);
+    * ``_foot_scan(sel)``: (n, sum of 2 K_b) terrain heights around the feet of worlds ``sel`` (a
+      slice or (n,) indices), relative to their soles, clipped to [-1, 1], block by block (both
+      feet of a block, then the next; read with ``cfg.foot_scan``);
     * ``_pit_under(feet_xy)``: (N, 2) bool, each foot at ``feet_xy`` (N, 2, 2) over a pit;
     * ``_privileged_dr()``: (N, 5 + A) the randomised dynamics of the privileged observation;
     * ``_depth_rows(sel)``: the depth images of worlds ``sel`` (a slice or (n,) indices), or None;

@@ -42,7 +42,7 @@ from legoh_rl.envs.body_state import BodyStateReader
 from legoh_rl.envs.device_terrain import DeviceTerrain, HostTerrain
 from legoh_rl.envs.gait import swing_joints, swing_reference
 from legoh_rl.envs.metrics import METRIC_NAMES, EpisodeMetrics
-from legoh_rl.envs.sensors import FOOT_SCAN_OFFSETS, foot_scan, scandot_offsets
+from legoh_rl.envs.sensors import foot_scan, foot_scan_blocks, scandot_offsets
 from legoh_rl.envs.step_quantities import StepQuantities
 
 __all__ = ["StepState"]
@@ -76,8 +76,8 @@ class StepState(StepQuantities):
     ``feet_air_time`` (N, 2), ``last_contact`` (N, 2) bool, ``feet_xy_prev`` (N, 2, 2), ``tick``
     (N,) bool, ``metrics`` (:class:`EpisodeMetrics`), ``depth`` (N, 1, H, W) or None; and the
     constants ``q_default`` (A,) (``q_default64`` in float64), ``q_soft_limits`` (A, 2),
-    ``hip_idx``, ``scandot_xy`` (K, 2), ``foot_scan_xy`` (K_f, 2) with ``cfg.foot_scan`` (else
-    None), ``tile_level``/``tile_category`` (T,); ``xquat`` (N, nbody, 4) is the simulation's live
+    ``hip_idx``, ``scandot_xy`` (K, 2), ``foot_scan_xy``, the foot scan's blocks of points
+    (:func:`~legoh_rl.envs.sensors.foot_scan_blocks`, each (K_b, 2); empty without ``cfg.foot_scan``), ``tile_level``/``tile_category`` (T,); ``xquat`` (N, nbody, 4) is the simulation's live
     body orientations.
     """
 
@@ -110,7 +110,7 @@ class StepState(StepQuantities):
         self.hip_idx = self.from_host(built.hip_idx, np.int64)
         self.scandot_xy = self.from_host(scandot_offsets())
         # the foot scan's points and the feet's orientations it reads (live arrays, as body.arrays)
-        self.foot_scan_xy = self.from_host(FOOT_SCAN_OFFSETS) if cfg.foot_scan else None
+        self.foot_scan_xy = tuple(self.from_host(b) for b in foot_scan_blocks(cfg.foot_scan_far)) if cfg.foot_scan else ()
         self.xquat = worlds.xquat if device is None else worlds.views["xquat"]
         self.tile_level = self.from_host(trails.tile_level, np.int64)
         self.tile_category = self.from_host(trails.tile_category, np.int64)
@@ -158,9 +158,9 @@ class StepState(StepQuantities):
 
     @property
     def scandots_width(self) -> int:
-        """Columns of the ``scandots`` observation: K scandots, then 2 K_f foot-scan heights with
-        ``cfg.foot_scan``."""
-        return int(self.scandot_xy.shape[0]) + (0 if self.foot_scan_xy is None else 2 * int(self.foot_scan_xy.shape[0]))
+        """Columns of the ``scandots`` observation: K scandots, then 2 K_b foot-scan heights per
+        block of ``foot_scan_xy`` (with ``cfg.foot_scan``)."""
+        return int(self.scandot_xy.shape[0]) + sum(2 * int(b.shape[0]) for b in self.foot_scan_xy)
 
     # ------------------------------------------------------------------ arrays
     def zeros(self, *shape: int, dtype=None):
@@ -371,8 +371,9 @@ class StepState(StepQuantities):
 
     def _foot_scan(self, sel):
         feet = self.body.index["foot_bodies"]
-        return foot_scan(self.body.arrays["xpos"][sel][:, feet], self.xquat[sel][:, feet], self.foot_scan_xy,
-                         self.terrain.heights, self.robot.foot_rest_height)
+        pos, quat = self.body.arrays["xpos"][sel][:, feet], self.xquat[sel][:, feet]
+        blocks = [foot_scan(pos, quat, xy, self.terrain.heights, self.robot.foot_rest_height) for xy in self.foot_scan_xy]
+        return blocks[0] if len(blocks) == 1 else self.xp.concat(blocks, axis=1)
 
     def _pit_under(self, feet_xy):
         xp = namespace_of(feet_xy)

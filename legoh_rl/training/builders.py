@@ -196,8 +196,8 @@ def policy_meta(env: HikingEnv, kind: str) -> dict:
     """What a checkpoint must match to be loaded for ``env``: robot, layout, action size, kind, and
     the gait clock's period and stance fraction when the env has a clock, its amplitude and
     feedforward gain when the clock drives the PD targets, and ``foot_scan: True`` when the
-    scandots end with the feet's scan (older checkpoints, made without them, carry no such
-    fields). :func:`policy_env_kwargs` rebuilds those env settings from the meta block."""
+    scandots end with the feet's scan, ``foot_scan_far: True`` when the far scan follows it (older
+    checkpoints, made without them, carry no such fields). :func:`policy_env_kwargs` rebuilds those env settings from the meta block."""
     spec = env.observation_spec
     # a student's depth size (absent for a blind student, trained and evaluated without the camera)
     keys = ("proprio", "privileged", "scandots", "expert_goals") + (("depth",) if kind != "oracle" and "depth" in spec.keys() else ())
@@ -209,6 +209,8 @@ def policy_meta(env: HikingEnv, kind: str) -> dict:
         meta.update(gait_amplitude=env.cfg.gait_amplitude, gait_feedforward=env.cfg.gait_feedforward)
     if env.cfg.foot_scan:  # the scandots' layout: 132 base dots, then the feet's scan
         meta["foot_scan"] = True
+    if env.cfg.foot_scan_far:  # ... then the feet's far scan
+        meta["foot_scan_far"] = True
     return meta
 
 
@@ -219,9 +221,10 @@ _GAIT_FIELDS = ("gait_period", "gait_stance", "gait_amplitude", "gait_feedforwar
 def policy_env_kwargs(meta: Mapping) -> dict:
     """The env config fields that rebuild the env a checkpoint's policy was trained in, from its
     meta block (:func:`policy_meta`): its gait clock's fields where it has a clock, and
-    ``foot_scan`` always (False for a checkpoint that records none: its scandots are the 132 base
-    dots). Evaluation, the ONNX loader and a student's env (its teacher's: they replace the
+    ``foot_scan`` and ``foot_scan_far`` always (False for a checkpoint that records none: its
+    scandots are the 132 base dots, or those and the near foot scan). Evaluation, the ONNX loader and a student's env (its teacher's: they replace the
     student config's own) are built with them."""
     out: dict = {k: float(meta[k]) for k in _GAIT_FIELDS if k in meta}
     out["foot_scan"] = bool(meta.get("foot_scan", False))
+    out["foot_scan_far"] = bool(meta.get("foot_scan_far", False))
     return out
