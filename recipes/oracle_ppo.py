@@ -98,6 +98,7 @@ SETTINGS = {
     "model.network": Name(),  # a name in ORACLE_NETWORKS: oracle_network_class
     "checkpoint.init": Name(nullable=True),
     "checkpoint.init_widen": Flag(),  # zero weights on the scandot columns checkpoint.init's networks lack
+    "checkpoint.init_curriculum": Flag(),  # the worlds start on the levels checkpoint.init's curriculum left: init_curriculum
     # [start, end] (check_anneal), or inherit: feedforward_schedule
     "feedforward_anneal": OneOf((ListOf(Integer(0)), Choice((INHERIT,))), "[start_frames, end_frames] or inherit",
                                 nullable=True),
@@ -397,6 +398,8 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
             trainer.lineage = init_networks(networks, env, cfg.checkpoint.init,
                                             widen=bool(cfg.checkpoint.get("init_widen", False)))
             start_action_std(cfg, actor, "checkpoint.init")
+            if cfg.checkpoint.get("init_curriculum", False):
+                init_curriculum(env, cfg.checkpoint.init)
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
@@ -426,6 +429,36 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
         if Path(path).resolve().parent != Path(cfg.checkpoint.dir).resolve():  # another run's state: a new stage
             start_action_std(cfg, actor, str(path))
     return trainer
+
+
+#: the env fields that decide which world holds which category, read by :func:`init_curriculum`
+CURRICULUM_LAYOUT = ("num_envs", "categories", "category_weights", "levels")
+
+
+def init_curriculum(env, path: str) -> None:
+    """``checkpoint.init_curriculum``: the worlds of a fresh run start on the levels the curriculum
+    of ``path`` (a training checkpoint, ``last.pt``) left, as a stage resuming the previous one
+    keeps them (``checkpoint.keep_curriculum``), where ``checkpoint.init`` carries the networks
+    only (e.g. networks widened for more scandots, which a stage's resume cannot load).
+
+    Raises:
+        ValueError: ``path`` holds no env state (a slim export), or was trained with other worlds
+            (one of :data:`CURRICULUM_LAYOUT` differs: names the field and both values).
+    """
+    state = load_checkpoint(path)
+    if "env" not in state or "curriculum" not in state["env"]:
+        raise ValueError(f"checkpoint.init_curriculum=true: {path} holds no curriculum state (a slim policy export?); "
+                         "use a run's last.pt")
+    theirs = (state.get("config") or {}).get("env") or {}
+    for key in CURRICULUM_LAYOUT:
+        mine = getattr(env.cfg, key)
+        have = theirs.get(key)
+        have = tuple(have) if isinstance(have, list | tuple) else have
+        if have != mine:
+            raise ValueError(f"checkpoint.init_curriculum=true: {path} was trained with env.{key}={have!r}, this run has "
+                             f"{mine!r}: its worlds' levels would land on other worlds")
+    env.curriculum.load_state_dict(state["env"]["curriculum"])
+    print(f"curriculum levels from {path} (mean {env.curriculum.levels.mean():.2f}; checkpoint.init_curriculum)")
 
 
 def start_action_std(cfg: DictConfig, actor: torch.nn.Module, source: str) -> float | None:

@@ -768,6 +768,33 @@ def test_init_widen_starts_a_far_scan_run_from_a_foot_scan_policy(tmp_path):
     assert policy(env.reset())["action"].shape == (1, env.A)
 
 
+def test_init_curriculum_starts_the_worlds_on_the_levels_inits_run_left(tmp_path):
+    """checkpoint.init_curriculum: a fresh run from another run's last.pt starts its worlds on the
+    levels that run's curriculum left (set here by hand, as a curriculum would), not on env.levels;
+    without the switch they start on env.levels. A slim export (no env state) and a run with other
+    worlds (env.num_envs) are refused, naming the file and the field."""
+    from legoh_rl.training.checkpoint import export_policy
+
+    src = tmp_path / "src"
+    levels = ["env.levels=[0,1,2,3,4]", "env.curriculum.enabled=true"]
+    oracle_ppo.train(cfg_of("oracle_ppo", TINY + levels + ["collector.total_frames=32", f"checkpoint.dir={src}"]))
+    state = load_checkpoint(src / "last.pt")
+    state["env"]["curriculum"]["levels"] = np.array([4, 3, 3, 1])
+    save_checkpoint(src / "last.pt", state)
+    init = TINY + levels + [f"checkpoint.init={src / 'last.pt'}"]
+    parts = oracle_ppo.build(cfg_of("oracle_ppo", init + ["checkpoint.init_curriculum=true", f"checkpoint.dir={tmp_path / 'a'}"]))
+    assert parts.env.curriculum.levels.tolist() == [4, 3, 3, 1]
+    fresh = oracle_ppo.build(cfg_of("oracle_ppo", init + [f"checkpoint.dir={tmp_path / 'b'}"]))
+    assert fresh.env.curriculum.levels.tolist() != [4, 3, 3, 1]
+    with pytest.raises(ValueError, match=r"src/last.pt was trained with env.num_envs=4, this run has 8"):
+        oracle_ppo.build(cfg_of("oracle_ppo", init + ["env.num_envs=8", "checkpoint.init_curriculum=true",
+                                                      f"checkpoint.dir={tmp_path / 'c'}"]))
+    slim = export_policy(src / "last.pt", tmp_path / "slim.pt")
+    with pytest.raises(ValueError, match=r"slim.pt holds no curriculum state"):
+        oracle_ppo.build(cfg_of("oracle_ppo", TINY + levels + [f"checkpoint.init={slim}", "checkpoint.init_curriculum=true",
+                                                               f"checkpoint.dir={tmp_path / 'd'}"]))
+
+
 def test_init_path_missing_is_refused(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"checkpoint.init: no policy at /nope/policy.pt"):
         oracle_ppo.build(cfg_of("oracle_ppo", TINY + ["checkpoint.init=/nope/policy.pt", f"checkpoint.dir={tmp_path}"]))
