@@ -250,6 +250,7 @@ KINDS = {
         "model.layers": bad_list(st.integers(1, 64), bad_int(1), null=True),
         "checkpoint.init": bad_name(null=True),
         "checkpoint.init_widen": bad_flag(),
+        "checkpoint.init_curriculum": bad_flag(),
         "feedforward_anneal": bad_list(st.integers(0, 10), bad_int(0), null=True, single_ok=("inherit",)),
         "update_threads": bad_int(1, null=True),
         "kl_measure": bad_choice(("after_step", "loss_forward")),
