@@ -198,7 +198,7 @@ def check_network(state: dict, networks, path: str, what: str) -> None:
                          f"(this run has model.network={networks.cfg.network})")
 
 
-def init_networks(networks, env, path: str, widen: bool = False) -> dict:
+def init_networks(networks, env, path: str, widen: bool = False, state: dict | None = None) -> dict:
     """Start a fresh run from the networks of a policy file (slim export or training checkpoint).
 
     ``widen`` (``checkpoint.init_widen``): the file's networks read narrower scandots than this
@@ -206,7 +206,8 @@ def init_networks(networks, env, path: str, widen: bool = False) -> dict:
     scandots (:func:`~legoh_rl.modules.oracle.scandot_input_keys`: the actor's and the critic's
     encoders) start with the file's weights on the old columns and zeros on the new ones
     (:func:`~legoh_rl.training.checkpoint.widen_input_columns`), every other weight is copied, so
-    the run starts acting (and valuing) exactly as the file's policy did.
+    the run starts acting (and valuing) exactly as the file's policy did. ``state``: the file's
+    contents when the caller has loaded them already (read from ``path`` otherwise).
 
     Returns:
         The run's meta record of the widening, ``{WIDENED_KEY: {"checkpoint": path, "scandots":
@@ -217,7 +218,7 @@ def init_networks(networks, env, path: str, widen: bool = False) -> dict:
             scandots without ``widen`` (names the first layer, both its shapes and the switch);
             ``widen`` with scandots as wide as this run's (nothing to widen).
     """
-    state = load_checkpoint(path)
+    state = load_checkpoint(path) if state is None else state
     meta = state.get("meta", {})
     if "networks" not in state or meta.get("kind") != "oracle":
         raise ValueError(f"checkpoint.init: {path} holds no oracle networks (kind {meta.get('kind')!r})")
@@ -395,11 +396,12 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     if path is None:
         set_feedforward(env, trainer.feedforward, 0)
         if cfg.checkpoint.get("init") is not None:
+            init = load_checkpoint(cfg.checkpoint.init)  # read once: networks, and the curriculum if asked
             trainer.lineage = init_networks(networks, env, cfg.checkpoint.init,
-                                            widen=bool(cfg.checkpoint.get("init_widen", False)))
+                                            widen=bool(cfg.checkpoint.get("init_widen", False)), state=init)
             start_action_std(cfg, actor, "checkpoint.init")
             if cfg.checkpoint.get("init_curriculum", False):
-                init_curriculum(env, cfg.checkpoint.init)
+                init_curriculum(env, init, cfg.checkpoint.init)
     else:
         state = load_checkpoint(path)
         require_training_state(state, path, ("loss", "optim", "sched", "env", "rng", "frames"))
@@ -431,13 +433,14 @@ def build(cfg: DictConfig, env=None) -> OracleTrainer:
     return trainer
 
 
-#: the env fields that decide which world holds which category, read by :func:`init_curriculum`
-CURRICULUM_LAYOUT = ("num_envs", "categories", "category_weights", "levels")
+#: the env fields that decide which world holds which category
+#: (:func:`~legoh_rl.envs.curriculum.world_categories`), read by :func:`init_curriculum`
+CURRICULUM_LAYOUT = ("num_envs", "categories", "category_weights")
 
 
-def init_curriculum(env, path: str) -> None:
+def init_curriculum(env, state: dict, path: str) -> None:
     """``checkpoint.init_curriculum``: the worlds of a fresh run start on the levels the curriculum
-    of ``path`` (a training checkpoint, ``last.pt``) left, as a stage resuming the previous one
+    of ``state`` (the contents of ``path``, a training checkpoint ``last.pt``) left, as a stage resuming the previous one
     keeps them (``checkpoint.keep_curriculum``), where ``checkpoint.init`` carries the networks
     only (e.g. networks widened for more scandots, which a stage's resume cannot load).
 
@@ -445,7 +448,6 @@ def init_curriculum(env, path: str) -> None:
         ValueError: ``path`` holds no env state (a slim export), or was trained with other worlds
             (one of :data:`CURRICULUM_LAYOUT` differs: names the field and both values).
     """
-    state = load_checkpoint(path)
     if "env" not in state or "curriculum" not in state["env"]:
         raise ValueError(f"checkpoint.init_curriculum=true: {path} holds no curriculum state (a slim policy export?); "
                          "use a run's last.pt")
