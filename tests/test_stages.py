@@ -191,6 +191,31 @@ def test_the_low_std_stage_is_stage5s_state_with_only_the_action_std_changed():
         {k: v for k, v in theirs_model.items() if k not in ("start_std", "max_std")}
 
 
+def test_the_long_stride_stage_is_stage8s_state_with_only_gaps_joint_reference_lightened():
+    """oracle_h1_long_stride: stage 1 is a copy of stage 8's (oracle_h1_far_scan's) whole final
+    state; stage 2 trains it to 40M frames with stage 8's settings but gait_joint_ref at 0.25 on Gap
+    worlds only and three PPO epochs."""
+    cfg = cfg_of("oracle_ppo", ["experiment=oracle_h1_long_stride"])
+    stages = parse_stages(cfg.stages)
+    assert [s.name for s in stages] == ["far_scan", "long_stride"]
+    first, second = stage_config(cfg, stages, 0), stage_config(cfg, stages, 1)
+    copy = load_checkpoint(ROOT / first.checkpoint.dir / "last.pt")
+    base = cfg_of("oracle_ppo", ["experiment=oracle_h1_far_scan"])
+    theirs = load_checkpoint(ROOT / base.checkpoint.dir / "last.pt")
+    assert copy["frames"] == theirs["frames"] == stages[0].frames
+    assert all(torch.equal(copy["networks"][k], theirs["networks"][k]) for k in theirs["networks"])
+    assert second.collector.total_frames == 40_000_000
+    mine_env = OmegaConf.to_container(second.env, resolve=True)
+    base_env = OmegaConf.to_container(base.env, resolve=True)
+    assert mine_env.pop("category_reward_scales") == {"gap": {"gait_joint_ref": 0.25}}
+    assert base_env.pop("category_reward_scales") == {}
+    assert mine_env == base_env
+    mine_ppo, base_ppo = OmegaConf.to_container(second.ppo), OmegaConf.to_container(base.ppo)
+    assert (mine_ppo.pop("num_epochs"), base_ppo.pop("num_epochs")) == (3, 5)
+    assert mine_ppo == base_ppo
+    assert OmegaConf.to_container(second.model) == OmegaConf.to_container(base.model)
+
+
 @pytest.mark.parametrize("path", EXPERIMENTS, ids=[p.stem for p in EXPERIMENTS])
 def test_every_experiment_names_itself_and_its_recipe(path):
     recipe = OmegaConf.load(path).get("recipe")
