@@ -403,8 +403,18 @@ def build(cfg: DictConfig) -> UnifiedTrainer:
 INIT_KEY = "initialised_from"
 #: what a student policy must share with this run to start it: the robot, what it observes and acts
 #: on, the gait clock its proprioception carries, and its perception (the teacher may differ)
-INIT_META = ("robot", "num_actions", "obs_layout", "gait_period", "gait_stance", "foot_scan", "foot_scan_far", "perception",
-             "preset")
+INIT_META = ("robot", "num_actions", "obs_layout", "gait_period", "gait_stance", "perception", "preset")
+#: observations only the teacher reads: their width follows the teacher's foot scan (``foot_scan``,
+#: ``foot_scan_far``), so a student may start a run whose teacher sees more terrain than its own did
+TEACHER_ONLY_OBS = ("scandots",)
+
+
+def _student_fields(meta: dict) -> dict:
+    """``meta``'s :data:`INIT_META` fields, its ``obs_layout`` without :data:`TEACHER_ONLY_OBS`."""
+    out = {k: meta.get(k) for k in INIT_META}
+    if isinstance(out["obs_layout"], dict):
+        out["obs_layout"] = {k: v for k, v in out["obs_layout"].items() if k not in TEACHER_ONLY_OBS}
+    return out
 
 
 def init_student(p: UnifiedTrainer, path: str) -> dict:
@@ -418,8 +428,9 @@ def init_student(p: UnifiedTrainer, path: str) -> dict:
         "teacher_sha256"}`` (the policy's own teacher, which may differ from this run's).
 
     Raises:
-        ValueError: not a student policy; another robot, observation layout, gait clock,
-            perception or preset (names each field with both values); another locomotion network.
+        ValueError: not a student policy; another robot, observation layout (the teacher's
+            scandots aside), gait clock, perception or preset (names each field with both values);
+            another locomotion network.
         CheckpointError: weights of other shapes (names the setting to fix).
     """
     state = load_checkpoint(path)
@@ -427,7 +438,8 @@ def init_student(p: UnifiedTrainer, path: str) -> dict:
     if meta.get("kind") != "student" or "perception" not in state or "actor" not in state:
         raise ValueError(f"checkpoint.init: {path} holds no student policy (kind {meta.get('kind')!r}); "
                          "an oracle starts a student only as its teacher")
-    check_meta(meta, {k: p.meta[k] for k in INIT_META if k in p.meta}, path)
+    mine = _student_fields(p.meta)
+    check_meta(_student_fields(meta), {k: v for k, v in mine.items() if k in p.meta}, path)
     check_network(meta, p.meta, path)
     hint = "student.perception and student.preset must be the policy's"
     load_weights(p.student.perception, state["perception"], path, "perception weights", hint)

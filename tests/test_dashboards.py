@@ -128,7 +128,7 @@ def test_evaluation_logs_numeric_columns_in_the_experiments_group(tmp_path, monk
     from legoh_rl.training import eval_run
 
     assert eval_run.checkpoint_experiment(str(RECIPES.parent / "checkpoints" / "oracle_h1.pt")) == \
-        "oracle_h1_real_pits"
+        "oracle_h1_long_stride"
     assert eval_run.checkpoint_experiment("zero") is None
     logged, inits = [], []
     real_log, real_init = wandb.sdk.wandb_run.Run.log, wandb.init

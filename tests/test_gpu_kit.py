@@ -138,8 +138,8 @@ def test_the_robot_model_is_copied_from_menagerie_root(tmp_path, monkeypatch):
 def test_slim_keeps_the_files_each_job_reads():
     assert gpu_kit.needed_paths("oracle_g1_real_pits_gpu") == [
         "runs/oracle_g1_foot_scan/snapshots/frames030001152.pt", "runs/oracle_g1_real_pits_gpu"]
-    assert gpu_kit.needed_paths("student_h1_real_pits") == ["checkpoints/oracle_h1.pt", "runs/student_h1_real_pits"]
-    assert gpu_kit.needed_paths("student_h1_real_pits_gpu") == ["checkpoints/oracle_h1.pt",
+    assert gpu_kit.needed_paths("student_h1_real_pits") == ["checkpoints/oracle_h1_real_pits.pt", "runs/student_h1_real_pits"]
+    assert gpu_kit.needed_paths("student_h1_real_pits_gpu") == ["checkpoints/oracle_h1_real_pits.pt",
                                                                "runs/student_h1_real_pits_gpu"]
 
 

@@ -236,7 +236,8 @@ RECORDED = [("oracle_h1_randommix", "checkpoints/oracle_h1_randommix.pt"),
             ("student_h1_real_pits", "checkpoints/student_h1.pt"),
             ("oracle_h1_footholds", "checkpoints/oracle_h1_clocked.pt"),
             ("oracle_h1_foot_scan", "checkpoints/oracle_h1_foot_scan.pt"),
-            ("oracle_h1_real_pits", "checkpoints/oracle_h1.pt"),
+            ("oracle_h1_real_pits", "checkpoints/oracle_h1_real_pits.pt"),
+            ("oracle_h1_long_stride", "checkpoints/oracle_h1.pt"),
             ("oracle_g1_trails", "checkpoints/oracle_g1_trails_clocked.pt"),
             ("oracle_g1_foot_scan", "checkpoints/oracle_g1_foot_scan.pt"),
             ("oracle_g1_real_pits", "checkpoints/oracle_g1_trails.pt"),
@@ -442,7 +443,7 @@ def test_the_gpu_real_pits_student_is_the_cpu_students_schedule_on_cuda(tmp_path
 
 def test_the_free_gait_stage_goes_on_from_stage5s_whole_state_with_the_gait_terms_off_on_pits():
     """oracle_h1_free_gait: stage 1 is done (a copy of oracle_h1_real_pits's last.pt at its end, the
-    networks checkpoints/oracle_h1.pt holds); stage 2 resumes it (optimiser, curriculum, random
+    networks checkpoints/oracle_h1_real_pits.pt holds); stage 2 resumes it (optimiser, curriculum, random
     streams) to 40M frames with the env of stage 5 but for category_reward_scales, which zero the two
     gait-clock terms on Gap and Ditch; the control, oracle_h1_real_pits_long, ends at the same frames."""
     from legoh_rl.training.stages import _finished
@@ -452,7 +453,7 @@ def test_the_free_gait_stage_goes_on_from_stage5s_whole_state_with_the_gait_term
     assert [s.name for s in stages] == ["real_pits", "free_gait"]
     first = stage_config(cfg, stages, 0)
     copy = load_checkpoint(ROOT / first.checkpoint.dir / "last.pt")
-    exported = load_checkpoint(ROOT / "checkpoints" / "oracle_h1.pt")
+    exported = load_checkpoint(ROOT / "checkpoints" / "oracle_h1_real_pits.pt")
     assert copy["frames"] == stages[0].frames == exported["frames"] and _finished(first)
     assert all(torch.equal(copy["networks"][k], exported["networks"][k]) for k in exported["networks"])
     assert {"optim", "env", "rng"} <= set(copy)  # a whole training state, not a policy

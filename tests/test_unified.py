@@ -469,7 +469,7 @@ REAL_PITS_ENV = {"base_height_error_cap": 0.1, "category_weights": [1.0, 1.5, 1.
 
 @pytest.mark.parametrize("name,teacher,robot,env", [
     ("student_h1_foot_scan", "checkpoints/oracle_h1_foot_scan.pt", "h1", {}),
-    ("student_h1_real_pits", "checkpoints/oracle_h1.pt", "h1", REAL_PITS_ENV),
+    ("student_h1_real_pits", "checkpoints/oracle_h1_real_pits.pt", "h1", REAL_PITS_ENV),
     ("student_g1_foot_scan", "checkpoints/oracle_g1_foot_scan.pt", "g1", {}),
     ("student_g1_real_pits", "checkpoints/oracle_g1_trails.pt", "g1", REAL_PITS_ENV)])
 def test_experiment_foot_scan_students_distil_the_oracles_without_feedforward(tmp_path, name, teacher, robot, env):
@@ -521,6 +521,27 @@ def test_init_starts_a_fresh_student_from_a_student_policys_weights(teacher, tmp
     assert load_checkpoint(tmp_path / "i" / "last.pt")["meta"][unified.INIT_KEY] == info
     resumed = unified.build(tiny(teacher, tmp_path / "i", "collector.total_frames=160", "checkpoint.resume=auto", *init))
     assert resumed.frames == 120 and resumed.meta[unified.INIT_KEY] == info  # resumed, not initialised again
+
+
+def test_init_starts_a_student_under_a_teacher_that_sees_more_terrain(teacher, tmp_path):
+    """A student policy distilled from a teacher without the foot scan starts a run whose teacher
+    reads the near and far foot scan (292 scandots against 132): the scandots are the teacher's
+    input, not the student's, so only the student's own observations must match."""
+    far = tmp_path / "far"
+    oracle_ppo.train(cfg_of("oracle_ppo", ENV + ["collector.steps_per_env=8", "collector.total_frames=32",
+                                                 "ppo.num_epochs=1", f"checkpoint.dir={far}",
+                                                 "env.foot_scan=true", "env.foot_scan_far=true"]))
+    src = tmp_path / "src"
+    unified.train(tiny(teacher, src, "collector.total_frames=40"))
+    assert load_checkpoint(src / "last.pt")["meta"]["obs_layout"]["scandots"] == (132,)
+    p = unified.build(tiny(far / "last.pt", tmp_path / "run", f"checkpoint.init={src / 'last.pt'}"))
+    assert p.meta["obs_layout"]["scandots"] == (292,)
+    saved = load_checkpoint(src / "last.pt")
+    assert all(torch.equal(p.student.actor.state_dict()[k], v) for k, v in saved["actor"].items())
+    # what the student itself reads must still match: another gait clock is refused
+    with pytest.raises(ValueError, match=r"does not fit this run: obs_layout: .*\(37,\).*\(39,\).*; gait_period"):
+        unified.build(tiny(far / "last.pt", tmp_path / "clock", f"checkpoint.init={src / 'last.pt'}",
+                           "env.gait_period=0.8"))
 
 
 def test_init_refuses_what_cannot_start_a_student(teacher, tmp_path):
