@@ -181,8 +181,8 @@ def plot(rows: list[dict] | dict[str, list[dict]], out: Path, title: str, stage_
             ax.legend(fontsize=7)
         if not drawn:  # e.g. a student's constant gait gain: say so rather than leave empty axes
             ax.text(0.5, 0.5, "not logged by this run", ha="center", va="center", transform=ax.transAxes, color="0.4")
-        for x in stage_starts:
-            ax.axvline(x, color="k", ls="--", lw=0.8, alpha=0.6)
+        for start in stage_starts:
+            ax.axvline(start, color="k", ls="--", lw=0.8, alpha=0.6)
         ax.set_title(label)
         ax.set_xlabel(xlabel or ("environment steps" if x == "step" else "training hours"))
         ax.grid(alpha=0.3)

@@ -280,6 +280,22 @@ def test_plot_curves_joins_resumed_stages_and_smooths():
     assert plot_curves.running_mean([1.0, 3.0, 5.0, 7.0], 2) == [1.0, 2.0, 4.0, 6.0]
 
 
+def test_plot_curves_draws_every_panel_of_joined_stages(tmp_path, monkeypatch):
+    """Every panel after the first still reads its x values from the rows when stage starts are
+    marked (a marker once took the x key's place: KeyError on the second panel)."""
+    import plot_curves
+
+    figs = []
+    monkeypatch.setattr(plot_curves.plt, "close", figs.append)
+    first = [{"step": s, "curriculum/gap": 1.0, "episode/gap/success": 20.0} for s in (10, 20, 30)]
+    second = [{"step": s, "curriculum/gap": 2.0, "episode/gap/success": 40.0} for s in (30, 40)]
+    rows, starts = plot_curves.join_stages([first, second])
+    plot_curves.plot(rows, tmp_path / "joined.png", "two stages", starts, panels=plot_curves.TRAIL_PANELS)
+    drawn = [ax for ax in figs[0].axes if any(len(line.get_xdata()) == 4 for line in ax.lines)]
+    assert len(drawn) >= 2  # the curriculum panel and the grouped-success panel, both on steps 10-40
+    assert all(list(ax.lines[0].get_xdata()) == [10, 20, 30, 40] for ax in drawn)
+
+
 def test_plot_curves_overlays_separate_runs(tmp_path, monkeypatch):
     """--compare: {label: rows} draws each run in its own colour with a legend; NaN values are skipped."""
     import plot_curves
