@@ -577,6 +577,32 @@ def test_the_g1_student_distilled_again_starts_from_the_previous_g1_student(tmp_
     assert p.meta[unified.INIT_KEY]["experiment"] == "student_g1_foot_scan"
 
 
+def test_the_h1_student_of_the_stage9_oracle_starts_from_the_previous_h1_student(tmp_path):
+    """student_h1_long_stride: student_h1_real_pits's env and student under the stage-9 oracle
+    (checkpoints/oracle_h1.pt, 292 scandots), from checkpoints/student_h1.pt's weights (a student of
+    the 222-scandot stage-5 oracle), DAgger to 2,000 iterations, then PPO from action std 0.3."""
+    root = RECIPES.parent
+    cfg = cfg_of("unified", ["experiment=student_h1_long_stride", f"checkpoint.dir={tmp_path}"])
+    base = cfg_of("unified", ["experiment=student_h1_real_pits", f"checkpoint.dir={tmp_path}"])
+    assert cfg.teacher == "checkpoints/oracle_h1.pt" and base.teacher == "checkpoints/oracle_h1_real_pits.pt"
+    assert cfg.checkpoint.init == "checkpoints/student_h1.pt"
+    assert cfg.env == base.env and cfg.imitation == base.imitation
+    assert {**cfg.student, "ppo_join_std": None} == {**base.student} and cfg.student.ppo_join_std == 0.3
+    assert cfg.dagger_iters == cfg.hlm.warmup_iters == 2000 and cfg.collector.total_frames == 3000 * 64 * 24
+    teacher = load_checkpoint(root / cfg.teacher)
+    assert teacher["meta"]["experiment"] == "oracle_h1_long_stride" and teacher["meta"]["foot_scan_far"]
+    small = cfg_of("unified", ["experiment=student_h1_long_stride", f"checkpoint.dir={tmp_path}",
+                               f"teacher={root / cfg.teacher}", f"checkpoint.init={root / cfg.checkpoint.init}",
+                               "env.num_envs=8", "env.categories=[randommix]", "env.category_weights=null",
+                               "env.variants=1", "env.num_threads=1", "logger.backend=csv"])
+    p = unified.build(small)
+    assert p.env.observation_spec["scandots"].shape[-1] == 292
+    saved = load_checkpoint(root / cfg.checkpoint.init)
+    assert saved["meta"]["obs_layout"]["scandots"] == (222,)
+    assert all(torch.equal(p.student.actor.state_dict()[k], v) for k, v in saved["actor"].items())
+    assert p.meta[unified.INIT_KEY]["experiment"] == "student_h1_real_pits"
+
+
 def test_the_g1_ppo_join_run_starts_from_the_dagger_end_with_the_lower_std(tmp_path):
     """student_g1_ppo_join: student_g1_real_pits_init's env, teacher and student from its DAgger
     end's averaged weights (the committed snapshot), 100 iterations with the student acting alone,
