@@ -112,7 +112,7 @@ def _count_perception(policy) -> list[int]:
 
 
 def test_an_evaluation_that_holds_its_finished_worlds_records_the_same_episodes():
-    """The committed student on level-4 Ditch and Gap, where it falls within ~6 s, the Ditch pair
+    """The stage-5 oracle's student on level-4 Ditch and Gap, where it falls within ~6 s, the Ditch pair
     first (grid 9301): the Ditch worlds are held while the Gap worlds walk on. Its perception runs
     on the ticking worlds only and the held ones tick no more: fewer perception samples, in
     smaller batches whose rounding may differ in the last bits, so the episodes agree to float32
@@ -120,7 +120,7 @@ def test_an_evaluation_that_holds_its_finished_worlds_records_the_same_episodes(
     protocol = EvalProtocol(categories=("gap", "ditch"), levels=(4,), robots_per_cell=2, trajectories=4)
     runs = {}
     for hold in (False, True):
-        env, policy, _ = load_policy(str(ROOT / "checkpoints" / "student_h1.pt"), protocol, variants=1, seed=9301,
+        env, policy, _ = load_policy(str(ROOT / "checkpoints" / "student_h1_real_pits.pt"), protocol, variants=1, seed=9301,
                                      num_threads=1)
         calls = _count_perception(policy)
         result = run_protocol(env, policy, protocol, hold_finished=hold)

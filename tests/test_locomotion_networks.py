@@ -108,7 +108,7 @@ def test_the_default_is_the_papers_network_and_checkpoints_without_a_name_load_a
     assert all(torch.equal(a, b) for a, b in
                zip(built.module[0].module.state_dict().values(), paper.state_dict().values(), strict=True))
     # checkpoints from before runs recorded the network, and one that records it
-    for name, recorded in (("ablations/h1_lego_h_seed0.pt", False), ("student_g1_clocked.pt", False), ("student_h1.pt", True), ("student_g1.pt", True),
+    for name, recorded in (("ablations/h1_lego_h_seed0.pt", False), ("student_g1_clocked.pt", False), ("student_h1.pt", True), ("student_h1_real_pits.pt", True), ("student_g1.pt", True),
                            ("student_g1_foot_scan.pt", True), ("student_g1_real_pits_init.pt", True)):
         state = load_checkpoint(ROOT / "checkpoints" / name)
         assert ("locomotion_network" in state["meta"]) is recorded, name

@@ -224,11 +224,13 @@ def test_student_h1_is_the_longer_lego_h_row_and_no_ablation_seed(tmp_path):
     assert (missing.found, missing.path, missing.note) == (False, tmp_path / "ablations" / "h1_rmab.pt", "")
 
 
-def test_the_converged_rows_take_student_h1_and_their_own_seeds_only(tmp_path):
-    """Table 1 at convergence: LEGO-H is ``student_h1.pt`` (seed 0) and the
+def test_the_converged_rows_take_the_stage5_student_and_their_own_seeds_only(tmp_path):
+    """Table 1 at convergence: LEGO-H is ``student_h1_real_pits.pt`` (seed 0, the run the others
+    branch from) and the
     ``h1_lego_h_converged`` seeds; w TC-ViT and Vanilla their own seeds; the 1.70M-step rows take
     none of these files and the converged rows none of theirs."""
-    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(True), frames=6_912_000)
+    fake_checkpoint(tmp_path / "student_h1_real_pits.pt", student_meta(), hlm_config(True), frames=6_912_000)
+    fake_checkpoint(tmp_path / "student_h1.pt", student_meta(), hlm_config(True), frames=4_608_000)  # not a seed
     fake_checkpoint(tmp_path / "ablations" / "h1_lego_h_converged_seed1.pt", student_meta(), hlm_config(True),
                     frames=6_912_000)
     fake_checkpoint(tmp_path / "ablations" / "h1_no_hlm_converged_seed0.pt", student_meta(), hlm_config(False),
@@ -238,7 +240,7 @@ def test_the_converged_rows_take_student_h1_and_their_own_seeds_only(tmp_path):
     fake_checkpoint(tmp_path / "ablations" / "h1_vanilla_converged_seed0.pt", student_meta(perception="vanilla"),
                     hlm_config(False), frames=6_912_000)
     lego = pt.resolve_row(pt.ROWS["h1_lego_h_converged"], tmp_path)
-    assert lego.paths == (tmp_path / "student_h1.pt", tmp_path / "ablations" / "h1_lego_h_converged_seed1.pt")
+    assert lego.paths == (tmp_path / "student_h1_real_pits.pt", tmp_path / "ablations" / "h1_lego_h_converged_seed1.pt")
     assert lego.frames == (6_912_000, 6_912_000)
     no_hlm = pt.resolve_row(pt.ROWS["h1_no_hlm_converged"], tmp_path)
     assert no_hlm.paths == (tmp_path / "ablations" / "h1_no_hlm_converged_seed0.pt",)

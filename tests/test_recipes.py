@@ -643,7 +643,7 @@ def test_imitation_gap_labels_the_students_own_states_with_the_teacher():
     from legoh_rl.training.policies import load_cell_policy
 
     ck = RECIPES.parent / "checkpoints"
-    student, teacher = str(ck / "student_h1.pt"), str(ck / "oracle_h1_real_pits.pt")  # its teacher
+    student, teacher = str(ck / "student_h1_real_pits.pt"), str(ck / "oracle_h1_real_pits.pt")  # its teacher
     out = ig.imitation_gap(student, teacher, robots=2, seconds=0.3, variants=2)
     assert out["diff"].shape == (15, 2, 10) and np.isfinite(out["diff"]).all()
     env, policy, _, base = load_cell_policy(student, "randommix", 0, 2, 0, 2)
@@ -1093,9 +1093,10 @@ def test_provenance_prints_the_lineage_the_command_and_the_config(tmp_path, caps
     out = capsys.readouterr().out
     assert "experiment student_h1_foot_scan: student_h1_foot_scan.yaml <- student_h1.yaml" in out
     assert "teacher:\n    checkpoints/oracle_h1_foot_scan.pt\n" in out and "experiment oracle_h1_foot_scan:" in out
-    # today's student_h1.pt: the stage-5 oracle's student, its teacher recorded as checkpoints/oracle_h1.pt,
-    # the stage-5 oracle's name until 2026-12-07, found by its digest under the name it has since
-    assert provenance.main([str(ROOT / "checkpoints" / "student_h1.pt")]) == 0
+    # the stage-5 oracle's student (student_h1.pt until 2026-12-08), its teacher recorded as
+    # checkpoints/oracle_h1.pt, the stage-5 oracle's name until 2026-12-07, found by its digest under
+    # the name it has since
+    assert provenance.main([str(ROOT / "checkpoints" / "student_h1_real_pits.pt")]) == 0
     out = capsys.readouterr().out
     assert "experiment student_h1_real_pits: student_h1_real_pits.yaml <- student_h1_foot_scan.yaml" in out
     assert "teacher:\n    checkpoints/oracle_h1_real_pits.pt\n" in out and "experiment oracle_h1_real_pits:" in out

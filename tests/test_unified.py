@@ -579,13 +579,13 @@ def test_the_g1_student_distilled_again_starts_from_the_previous_g1_student(tmp_
 
 def test_the_h1_student_of_the_stage9_oracle_starts_from_the_previous_h1_student(tmp_path):
     """student_h1_long_stride: student_h1_real_pits's env and student under the stage-9 oracle
-    (checkpoints/oracle_h1.pt, 292 scandots), from checkpoints/student_h1.pt's weights (a student of
+    (checkpoints/oracle_h1.pt, 292 scandots), from checkpoints/student_h1_real_pits.pt's weights (a student of
     the 222-scandot stage-5 oracle), DAgger to 2,000 iterations, then PPO from action std 0.3."""
     root = RECIPES.parent
     cfg = cfg_of("unified", ["experiment=student_h1_long_stride", f"checkpoint.dir={tmp_path}"])
     base = cfg_of("unified", ["experiment=student_h1_real_pits", f"checkpoint.dir={tmp_path}"])
     assert cfg.teacher == "checkpoints/oracle_h1.pt" and base.teacher == "checkpoints/oracle_h1_real_pits.pt"
-    assert cfg.checkpoint.init == "checkpoints/student_h1.pt"
+    assert cfg.checkpoint.init == "checkpoints/student_h1_real_pits.pt"
     assert cfg.env == base.env and cfg.imitation == base.imitation
     assert {**cfg.student, "ppo_join_std": None} == {**base.student} and cfg.student.ppo_join_std == 0.3
     assert cfg.dagger_iters == cfg.hlm.warmup_iters == 2000 and cfg.collector.total_frames == 3000 * 64 * 24

@@ -91,9 +91,10 @@ _LONGER = ("LEGO-H, trained longer, is the same method as LEGO-H with more env s
            "steps column): ours alone, with the paper's LEGO-H figures repeated under it.")
 
 _CONVERGED = ("Ours only beyond the paper's Table 1: the same methods with each student trained until its "
-              "curve flattens (the env steps column), all distilled from the Oracle row. LEGO-H and w TC-ViT "
+              "curve flattens (the env steps column), all distilled from oracle_h1_real_pits.pt (the stage-5 oracle, "
+              "the Oracle row's predecessor). LEGO-H and w TC-ViT "
               "share their DAgger phase (student_h1_real_pits' to 5.38M env steps, whose LEGO-H end is "
-              "student_h1.pt, training seed 0) and differ from there on by L_hie alone; Vanilla is the whole "
+              "student_h1_real_pits.pt, training seed 0) and differ from there on by L_hie alone; Vanilla is the whole "
               "schedule with a ConvGRU. The paper's Table 1 figures are repeated under ours.")
 
 TABLES: dict[str, PaperTable] = {t.name: t for t in (

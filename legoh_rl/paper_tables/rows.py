@@ -67,10 +67,11 @@ ROWS: dict[str, RowSpec] = {spec.key: spec for spec in (
     _student("h1_lego_h_long", "tcvit", hlm=True, vanilla_vae=False, paths=("student_h1.pt",)),
     _student("h1_no_hlm", "tcvit", hlm=False),
     _student("h1_vanilla", "vanilla"),
-    # Table 1 at convergence: seed 0 of LEGO-H is student_h1.pt itself (its run is the branch point
-    # of the others: experiment=h1_lego_h_converged / h1_no_hlm_converged / h1_vanilla_converged)
+    # Table 1 at convergence: seed 0 of LEGO-H is student_h1_real_pits.pt itself (its run is the
+    # branch point of the others: experiment=h1_lego_h_converged / h1_no_hlm_converged /
+    # h1_vanilla_converged)
     _student("h1_lego_h_converged", "tcvit", hlm=True, vanilla_vae=False,
-             paths=("student_h1.pt", "ablations/h1_lego_h_converged_seed*.pt")),
+             paths=("student_h1_real_pits.pt", "ablations/h1_lego_h_converged_seed*.pt")),
     _student("h1_no_hlm_converged", "tcvit", hlm=False, paths=("ablations/h1_no_hlm_converged_seed*.pt",)),
     _student("h1_vanilla_converged", "vanilla", paths=("ablations/h1_vanilla_converged_seed*.pt",)),
     _student("h1_eph", "eph", hlm=False),
