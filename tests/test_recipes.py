@@ -513,9 +513,7 @@ def test_the_committed_oracle_walks_lifting_its_feet():
 
     s = gait_stats.gait_stats(str(RECIPES.parent / "checkpoints" / "oracle_h1_clocked.pt"), robots=4, seconds=4.0)
     assert s["standing"] == 4
-    # on flat RandomMix level 0 its swing rises 0.09 m (95th percentile; the stage-5 oracle's 0.15): a
-    # shuffle would stay under 0.03 m and leave no foot in the air for a fifth of the steps
-    assert s["lift_p95"] > 0.06 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s
+    assert s["lift_p95"] > 0.10 and 0.2 < s["airborne"] < 0.6 and s["speed"] > 0.3, s
 
 
 def test_the_foot_scan_oracle_walks_without_the_scripted_swing():
